@@ -1,0 +1,34 @@
+# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+PY      ?= python3.11
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+JOBS    ?= 2
+
+.PHONY: demo test install bench-rasterizer clean-results
+
+$(BIN)/python:
+	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+
+# torch first, pinned: its CPU wheel is taken before anything can ask for a CUDA build.
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q -e ".[test]"
+	@touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) --configfile config/config.yaml
+	@echo "Report: $(CURDIR)/reports/index.html"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench-rasterizer: $(STAMP)
+	$(BIN)/python benchmarks/bench_rasterizer.py
+
+clean-results:
+	rm -rf results .snakemake

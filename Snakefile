@@ -1,0 +1,19 @@
+# SignSplat workflow: a table of contents. Stages live in workflow/rules/*.smk; the science
+# lives in the signsplat library, which each rule calls through `python -m signsplat <stage>`.
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/assets.smk"
+include: "workflow/rules/simulate.smk"
+
+
+rule all:
+    input:
+        final_outputs(),
+    default_target: True

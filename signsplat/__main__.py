@@ -1,0 +1,5 @@
+import sys
+
+from signsplat.cli import main
+
+sys.exit(main())

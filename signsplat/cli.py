@@ -1,0 +1,59 @@
+"""Command line: ``signsplat <command> [options]`` (also ``python -m signsplat``).
+
+Each workflow rule is one command. Commands live beside the code they drive; this table maps a
+command to its module, which defines a function of the same name (dashes as underscores)
+taking the remaining arguments. Modules are imported only when their command runs.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from signsplat.errors import SignSplatError
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    # command: (module, one-line help)
+    "body-model": ("signsplat.body.cli", "write the body model (.npz, proxy or checked real file)"),
+    "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
+    "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
+    "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
+    "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
+    "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),
+    "perception-eval": ("signsplat.perception.cli", "perception accuracy and speed"),
+    "fit": ("signsplat.fit.cli", "SMPL-X fitting, multi-view or single view"),
+    "colmap-compare": ("signsplat.colmap.cli", "COLMAP reconstruction vs the SMPL-X camera solve"),
+    "train-avatar": ("signsplat.avatar.cli", "train the Gaussian-splat avatar"),
+    "evaluate": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),
+    "sign": ("signsplat.stitch.cli", "English sentence -> stitched signed video"),
+    "report": ("signsplat.report.cli", "write the HTML report"),
+}
+
+
+def _usage() -> str:
+    width = max(map(len, COMMANDS))
+    lines = ["usage: signsplat <command> [options]", "", "commands:"]
+    lines += [f"  {name:<{width}}  {help_}" for name, (_, help_) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"signsplat: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    func = getattr(module, name.replace("-", "_"))
+    try:
+        return int(func(rest) or 0)
+    except SignSplatError as exc:
+        print(f"signsplat {name}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

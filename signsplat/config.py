@@ -1,0 +1,125 @@
+"""Configuration: YAML files validated against JSON schemas, passed around as plain data.
+
+There is no global configuration object. The workflow loads ``config/config.yaml`` once,
+validates it (defaults filled in from the schema) and hands each stage the section it needs.
+An invalid file fails at once with the key, the bad value and what is allowed.
+
+Schemas live in ``workflow/schemas``; a schema may ``$ref`` a sibling file by relative path
+(``stages/avatar.schema.yaml``), so each stage owns the schema of its own section.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+from jsonschema import Draft202012Validator, validators
+from referencing import Registry, Resource
+from referencing.jsonschema import DRAFT202012 as _SPEC
+
+from signsplat.errors import SignSplatError
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+SCHEMA_DIR = REPO_ROOT / "workflow" / "schemas"
+
+
+class ConfigError(SignSplatError, ValueError):
+    """A configuration file does not match its schema."""
+
+
+def _load_yaml(path: Path) -> Any:
+    try:
+        with open(path) as fh:
+            return yaml.safe_load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+
+
+def _registry() -> Registry:
+    resources = []
+    for file in SCHEMA_DIR.rglob("*.schema.yaml"):
+        uri = file.relative_to(SCHEMA_DIR).as_posix()
+        resources.append((uri, Resource.from_contents(_load_yaml(file),
+                                                      default_specification=_SPEC)))
+    return Registry().with_resources(resources)
+
+
+
+def _with_defaults(validator_class):
+    """A validator that also fills in ``default`` values of object properties."""
+    validate_properties = validator_class.VALIDATORS["properties"]
+
+    def set_defaults(validator, properties, instance, schema):
+        if isinstance(instance, dict):
+            for name, sub in properties.items():
+                if isinstance(sub, dict) and "default" in sub and name not in instance:
+                    instance[name] = copy.deepcopy(sub["default"])
+        yield from validate_properties(validator, properties, instance, schema)
+
+    return validators.extend(validator_class, {"properties": set_defaults})
+
+
+_Validator = _with_defaults(Draft202012Validator)
+
+
+def _describe(error) -> str:
+    key = ".".join(str(p) for p in error.absolute_path) or "<top level>"
+    v, val = error.validator, error.validator_value
+    if v == "enum":
+        allowed = "one of " + ", ".join(repr(x) for x in val)
+    elif v == "type":
+        allowed = f"type {val}"
+    elif v in ("minimum", "exclusiveMinimum"):
+        allowed = f"{'>=' if v == 'minimum' else '>'} {val}"
+    elif v in ("maximum", "exclusiveMaximum"):
+        allowed = f"{'<=' if v == 'maximum' else '<'} {val}"
+    elif v == "additionalProperties":
+        allowed = "known keys: " + ", ".join(sorted(error.schema.get("properties", {})))
+        return f"key '{key}': {error.message}; {allowed}"
+    elif v == "required":
+        return f"key '{key}': {error.message}"
+    else:
+        allowed = f"{v} {val!r}"
+    return f"key '{key}': value {error.instance!r} is not allowed; must be {allowed}"
+
+
+def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>") -> Any:
+    """Validate ``data`` against ``workflow/schemas/<schema_name>``; fill defaults in place.
+
+    Raises :class:`ConfigError` naming the source, key, bad value and what is allowed.
+    """
+    registry = _registry()
+    schema = registry.contents(schema_name)
+    validator = _Validator(schema, registry=registry)
+    errors = sorted(validator.iter_errors(data), key=lambda e: list(e.absolute_path))
+    if errors:
+        # report the most specific error of each branch (anyOf/oneOf produce context errors)
+        lines = []
+        for err in errors:
+            best = err
+            while best.context:
+                best = min(best.context, key=lambda e: -len(e.absolute_path))
+            lines.append(_describe(best if best.absolute_path else err))
+        raise ConfigError(f"{source}: " + "; ".join(dict.fromkeys(lines)))
+    return data
+
+
+def load_config(path: str | os.PathLike) -> dict:
+    """Load and validate the main workflow config (``config/config.yaml``)."""
+    path = Path(path)
+    data = _load_yaml(path) or {}
+    return validate(data, "config.schema.yaml", path)
+
+
+def load_scene(path: str | os.PathLike) -> dict:
+    """Load and validate a scene spec (``config/scenes/<name>.yaml``)."""
+    path = Path(path)
+    data = _load_yaml(path) or {}
+    scene = validate(data, "scene.schema.yaml", path)
+    scene.setdefault("name", path.stem)
+    return scene
