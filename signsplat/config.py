@@ -44,8 +44,11 @@ def _registry() -> Registry:
     resources = []
     for file in SCHEMA_DIR.rglob("*.schema.yaml"):
         uri = file.relative_to(SCHEMA_DIR).as_posix()
-        resources.append((uri, Resource.from_contents(_load_yaml(file),
-                                                      default_specification=_SPEC)))
+        contents = _load_yaml(file)
+        # Without "$schema", jsonschema keeps our default-filling validator class when it
+        # follows a $ref (with it, it would switch to the stock class of that dialect).
+        contents.pop("$schema", None)
+        resources.append((uri, Resource.from_contents(contents, default_specification=_SPEC)))
     return Registry().with_resources(resources)
 
 
