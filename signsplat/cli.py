@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     # command: (module, one-line help)
     "body-model": ("signsplat.body.cli", "write the body model (.npz, proxy or checked real file)"),
     "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
+    "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
