@@ -126,3 +126,56 @@ def load_scene(path: str | os.PathLike) -> dict:
     scene = validate(data, "scene.schema.yaml", path)
     scene.setdefault("name", path.stem)
     return scene
+
+
+_SHEET_NUMBERS = {"fps": float, "start": int, "end": int}
+
+
+def load_sequences(config: dict, root: str | os.PathLike = ".") -> dict[str, dict]:
+    """The sequences a workflow run covers: the sheet's rows plus ``config['scenes']``.
+
+    Returns ``{name: row}`` where ``row`` has the sheet's columns (empty cells as None) and,
+    for synthetic sequences, ``scene`` (the validated scene spec); ``num_views`` is the number
+    of cameras. Errors name the sheet, the row, the key and what is allowed.
+    """
+    import pandas as pd
+
+    root = Path(root)
+    rows: list[tuple[str, dict]] = []
+    sheet = config.get("sequences")
+    if sheet:
+        path = root / sheet
+        if not path.is_file():
+            raise ConfigError(f"{path}: sequence sheet not found (config key 'sequences')")
+        table = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False, comment="#")
+        for i, rec in enumerate(table.to_dict("records"), start=2):  # line 1 is the header
+            row = {k: (v.strip() or None) for k, v in rec.items()}
+            for key, cast in _SHEET_NUMBERS.items():
+                if row.get(key) is not None:
+                    try:
+                        row[key] = cast(row[key])
+                    except ValueError:
+                        raise ConfigError(f"{path}: line {i}: key '{key}': value {row[key]!r} "
+                                          f"is not a {cast.__name__}") from None
+            rows.append((f"{path}: line {i}", row))
+    for name in config.get("scenes", []):
+        rows.append((f"config key 'scenes'", {"sequence": name, "source": "synthetic"}))
+
+    sequences: dict[str, dict] = {}
+    for where, row in rows:
+        validate(row, "sequences.schema.yaml", where)
+        name = row["sequence"]
+        if name in sequences:
+            raise ConfigError(f"{where}: sequence {name!r} is listed twice")
+        if row["source"] == "synthetic":
+            spec_path = root / (row["spec"] or f"config/scenes/{name}.yaml")
+            row["scene"] = load_scene(spec_path)
+            row["scene"]["name"] = name
+            row["num_views"] = row["scene"]["cameras"]["count"]
+        else:
+            row["num_views"] = len([c for c in row["cameras"].split(";") if c.strip()])
+        sequences[name] = row
+    if not sequences:
+        raise ConfigError("no sequences to run: the sheet is empty and config key 'scenes' "
+                          "is []")
+    return sequences

@@ -3,17 +3,19 @@
 import pytest
 import yaml
 
-from signsplat.config import ConfigError, REPO_ROOT, load_config, load_scene, validate
+from signsplat.config import REPO_ROOT, ConfigError, load_config, load_scene, validate
 
 
 def test_default_config_is_valid_and_complete():
+    from signsplat.config import load_sequences
+
     cfg = load_config(REPO_ROOT / "config" / "config.yaml")
-    assert cfg["scenes"], "the embedded default must name scenes"
     assert cfg["body_model"]["num_betas"] == 10
-    for name in cfg["scenes"]:
-        scene = load_scene(REPO_ROOT / "config" / "scenes" / f"{name}.yaml")
-        assert scene["name"] == name
-        assert scene["cameras"]["count"] >= 1
+    seqs = load_sequences(cfg, REPO_ROOT)
+    # the embedded default: a 6-view studio scene and a single-view scene
+    assert sorted(row["num_views"] for row in seqs.values()) == [1, 6]
+    for name, row in seqs.items():
+        assert row["scene"]["name"] == name
 
 
 def test_defaults_are_filled_in():
@@ -54,3 +56,42 @@ def test_scene_needs_cameras_and_motion(tmp_path):
     path.write_text(yaml.safe_dump({"cameras": {"count": 2}}))
     with pytest.raises(ConfigError, match="'motion' is a required property"):
         load_scene(path)
+
+
+def _sheet(tmp_path, text):
+    path = tmp_path / "seq.tsv"
+    path.write_text(text.replace("|", "\t"))
+    return {"sequences": str(path), "scenes": []}
+
+
+def test_sequence_sheet_rows(tmp_path):
+    from signsplat.config import load_sequences
+
+    cfg = _sheet(tmp_path, "sequence|source|spec|cameras|fps\n"
+                 f"s6|synthetic|{REPO_ROOT}/config/scenes/studio6.yaml||\n"
+                 "clip|video||a.mp4;b.mp4;c.mp4|30\n")
+    seqs = load_sequences(cfg)
+    assert seqs["s6"]["num_views"] == 6 and seqs["s6"]["scene"]["name"] == "s6"
+    assert seqs["clip"]["num_views"] == 3 and seqs["clip"]["fps"] == 30.0
+
+
+@pytest.mark.parametrize("body, fragment", [
+    ("x|video||", "key 'cameras': value None is not allowed; must be type string"),
+    ("x|webcam||a.mp4", "'synthetic', 'video'"),
+    ("x|video|||abc", "key 'fps': value 'abc' is not a float"),
+])
+def test_sequence_sheet_errors_name_the_line(tmp_path, body, fragment):
+    from signsplat.config import load_sequences
+
+    cfg = _sheet(tmp_path, "sequence|source|spec|cameras|fps\n" + body + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_sequences(cfg)
+    assert "seq.tsv: line 2" in str(err.value) and fragment in str(err.value)
+
+
+def test_sequence_listed_twice(tmp_path):
+    from signsplat.config import load_sequences
+
+    cfg = _sheet(tmp_path, "sequence|source|cameras\nx|video|a.mp4\nx|video|b.mp4\n")
+    with pytest.raises(ConfigError, match="line 3: sequence 'x' is listed twice"):
+        load_sequences(cfg)

@@ -3,13 +3,17 @@ import json
 import sys
 from pathlib import Path
 
-from signsplat.config import load_scene, validate
+from signsplat.config import load_sequences, validate
 
 validate(config, "config.schema.yaml", "config/config.yaml")
 
 PY = sys.executable
 RESULTS = config["results"]
-SCENES = {name: load_scene(f"config/scenes/{name}.yaml") for name in config["scenes"]}
+# Every sequence of the run (sheet rows + config `scenes`): name -> row (see load_sequences).
+SEQUENCES = load_sequences(config)
+# Synthetic sequences: name -> validated scene spec.
+SCENES = {name: row["scene"] for name, row in SEQUENCES.items() if row["source"] == "synthetic"}
+VIDEOS = {name: row for name, row in SEQUENCES.items() if row["source"] == "video"}
 
 # Stages append the files `rule all` asks for; the Snakefile's `rule all` reads them.
 FINAL_OUTPUTS = []
@@ -26,6 +30,19 @@ def as_json(obj):
 
 def scene_spec(wildcards):
     return as_json(SCENES[wildcards.scene])
+
+
+def num_views(scene):
+    return SEQUENCES[scene]["num_views"]
+
+
+def input_dir(scene):
+    """Folder holding a sequence's frames.parquet and images (simulated or extracted)."""
+    return f"{RESULTS}/{scene}/sim" if scene in SCENES else f"{RESULTS}/{scene}/frames"
+
+
+def frames_table(wildcards):
+    return f"{input_dir(wildcards.scene)}/frames.parquet"
 
 
 wildcard_constraints:
