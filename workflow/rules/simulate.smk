@@ -29,24 +29,3 @@ rule simulate:
 
 FINAL_OUTPUTS.extend(expand(rules.simulate.output.frames, scene=list(SCENES)))
 
-
-rule extract_frames:
-    output:
-        frames=f"{RESULTS}/{{scene}}/frames/frames.parquet",
-        images=directory(f"{RESULTS}/{{scene}}/frames/images"),
-    params:
-        seq=lambda w: as_json({k: v for k, v in VIDEOS[w.scene].items()}),
-    log:
-        f"{RESULTS}/_logs/{{scene}}/extract_frames.log",
-    benchmark:
-        f"{RESULTS}/_benchmarks/{{scene}}/extract_frames.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=60,
-    shell:
-        "{PY} -m signsplat extract-frames --sequence-json {params.seq:q}"
-        " --out {RESULTS}/{wildcards.scene}/frames > {log} 2>&1"
-
-
-FINAL_OUTPUTS.extend(expand(rules.extract_frames.output.frames, scene=list(VIDEOS)))
