@@ -1,0 +1,273 @@
+"""Scene spec -> camera rig and SMPL-X motion (the inputs of the simulator).
+
+A scene spec is the validated dict of ``config/scenes/<name>.yaml``
+(``workflow/schemas/scene.schema.yaml``). This module turns it into
+
+- a camera rig: :func:`camera_rig` -> list of :class:`~signsplat.synth.effects.Camera`,
+  arranged on an arc or ring around ``cameras.target`` at horizontal ``distance``, centres at
+  ``height``, looking at the target; vertical field of view -> ``fx = fy``, principal point at
+  the image centre ``((W-1)/2, (H-1)/2)``;
+- a motion: :func:`build_motion` -> dict of SMPL-X parameter blocks, each (T, k) float32,
+  from glosses of the gloss library composed with holds and smooth transitions, or from an
+  ``smplx_params`` Parquet table. Betas come from the signer, the global orientation is the
+  identity (the signer faces +z) and the translation zero (the body stands on y = 0).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from signsplat.body.joints import POSE_BLOCKS
+from signsplat.errors import InputError, SignSplatError
+from signsplat.synth.effects import Camera
+
+__all__ = ["look_at", "camera_rig", "scene_target", "build_motion", "compose_clips",
+           "params_at", "SceneError", "ROTATION_BLOCKS"]
+
+ROTATION_BLOCKS = tuple(name for name, _ in POSE_BLOCKS)  # axis-angle blocks
+_BLOCK_SIZES = dict(POSE_BLOCKS)
+
+
+class SceneError(SignSplatError, ValueError):
+    """A scene spec refers to something that does not exist (gloss, track file)."""
+
+
+# --- cameras -------------------------------------------------------------------------------
+
+def look_at(eye: Sequence[float], target: Sequence[float],
+            up: Sequence[float] = (0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV extrinsics of a camera at ``eye`` looking at ``target`` with world ``up``.
+
+    Returns ``R`` (3,3) float64 (rows: camera right, down, forward in world coordinates) and
+    ``t`` (3,) with ``x_cam = R @ x_world + t``.
+    """
+    eye = np.asarray(eye, np.float64)
+    forward = np.asarray(target, np.float64) - eye
+    norm = np.linalg.norm(forward)
+    if norm < 1e-12:
+        raise SceneError("camera: eye and target coincide")
+    forward /= norm
+    right = np.cross(forward, np.asarray(up, np.float64))
+    if np.linalg.norm(right) < 1e-9:  # looking straight up or down: pick any right vector
+        right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward])
+    return R, -R @ eye
+
+
+def scene_target(cameras: Mapping[str, Any]) -> np.ndarray:
+    """(3,) float64 point the rig looks at."""
+    return np.asarray(cameras["target"], np.float64)
+
+
+def camera_rig(cameras: Mapping[str, Any]) -> list[Camera]:
+    """Cameras of a scene's ``cameras`` section (defaults filled in by the schema).
+
+    ``arc``: ``count`` cameras evenly over ``arc_degrees`` centred on the signer's front (+z);
+    ``ring``: evenly over 360 degrees starting at the front. ``distance`` is measured in the
+    horizontal plane from ``target``; camera centres are at y = ``height``.
+    """
+    n = int(cameras["count"])
+    if cameras["layout"] == "ring":
+        angles = np.arange(n) * (2 * np.pi / n)
+    else:
+        half = np.deg2rad(float(cameras["arc_degrees"])) / 2
+        angles = np.linspace(-half, half, n) if n > 1 else np.zeros(1)
+    target = scene_target(cameras)
+    d = float(cameras["distance"])
+    W, H = int(cameras["width"]), int(cameras["height_px"])
+    f = 0.5 * H / np.tan(np.deg2rad(float(cameras["fov_degrees"])) / 2)
+    K = np.array([[f, 0.0, (W - 1) / 2], [0.0, f, (H - 1) / 2], [0.0, 0.0, 1.0]])
+    rig = []
+    for a in angles:
+        eye = np.array([target[0] + d * np.sin(a), float(cameras["height"]),
+                        target[2] + d * np.cos(a)])
+        R, t = look_at(eye, target)
+        rig.append(Camera(K.copy(), R, t, W, H))
+    return rig
+
+
+# --- motion --------------------------------------------------------------------------------
+
+def _slerp_rotvec(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per-joint SLERP between axis-angle rows a, b (k,) (k = 3J) at weights w (n,) -> (n, k)."""
+    import roma
+    import torch
+
+    ta = torch.as_tensor(a.reshape(-1, 3), dtype=torch.float64)
+    tb = torch.as_tensor(b.reshape(-1, 3), dtype=torch.float64)
+    out = roma.rotvec_slerp(ta, tb, torch.as_tensor(w, dtype=torch.float64))
+    return out.reshape(len(w), -1).numpy()
+
+
+def _ease(n: int) -> np.ndarray:
+    """n weights strictly between 0 and 1 with a cubic ease-in-out (smoothstep)."""
+    s = np.arange(1, n + 1) / (n + 1)
+    return s * s * (3 - 2 * s)
+
+
+def _resample(track: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+    """Linear resampling of a (N, k) track from ``src_fps`` to ``dst_fps``."""
+    if abs(src_fps - dst_fps) < 1e-9 or len(track) < 2:
+        return track
+    duration = (len(track) - 1) / src_fps
+    n = int(round(duration * dst_fps)) + 1
+    t_src = np.arange(len(track)) / src_fps
+    t_dst = np.arange(n) / dst_fps
+    return np.stack([np.interp(t_dst, t_src, track[:, j]) for j in range(track.shape[1])], 1)
+
+
+def compose_clips(clips: Sequence[Mapping[str, np.ndarray]], hold_frames: int = 2,
+                  transition_frames: int = 6) -> dict[str, np.ndarray]:
+    """Concatenate clips (dicts of (N_i, k) blocks) with holds and eased transitions.
+
+    Each clip's last frame is held ``hold_frames`` frames; between clips ``transition_frames``
+    frames interpolate from the last pose of one clip to the first of the next (SLERP per joint
+    for axis-angle blocks, linear for others, smoothstep easing). Blocks are those of the first
+    clip; every clip must have them.
+    """
+    if not clips:
+        raise SceneError("motion: no clips to compose")
+    keys = list(clips[0])
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    for i, clip in enumerate(clips):
+        if i > 0 and transition_frames > 0:
+            w = _ease(transition_frames)
+            for k in keys:
+                a, b = parts[k][-1][-1], np.asarray(clip[k], np.float64)[0]
+                if k in ROTATION_BLOCKS:
+                    parts[k].append(_slerp_rotvec(a, b, w))
+                else:
+                    parts[k].append(a[None] * (1 - w[:, None]) + b[None] * w[:, None])
+        for k in keys:
+            track = np.asarray(clip[k], np.float64)
+            parts[k].append(track)
+            if hold_frames > 0:
+                parts[k].append(np.repeat(track[-1:], hold_frames, axis=0))
+    return {k: np.concatenate(v, axis=0) for k, v in parts.items()}
+
+
+def _stitch(clips, hold_frames, transition_frames):
+    """Compose with ``signsplat.stitch.motion.stitch_clips`` when available, else locally."""
+    try:
+        from signsplat.stitch.motion import stitch_clips
+    except ImportError:
+        return compose_clips(clips, hold_frames, transition_frames)
+    return {k: np.asarray(v, np.float64) for k, v in
+            stitch_clips(clips, hold_frames=hold_frames,
+                         transition_frames=transition_frames).items()}
+
+
+def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: float,
+                  hold_frames: int, transition_frames: int) -> dict[str, np.ndarray]:
+    from signsplat.synth.glosses import load_gloss_library
+
+    library = load_gloss_library(gloss_path)
+    missing = [g for g in names if g not in library]
+    if missing:
+        raise SceneError(f"motion.glosses: unknown gloss(es) {missing} in {gloss_path}; "
+                         f"known: {', '.join(sorted(library))}")
+    clips = []
+    for g in names:
+        clip = library[g]
+        src_fps = float(getattr(clip, "fps", fps))
+        clips.append({k: _resample(np.asarray(v, np.float64), src_fps, fps)
+                      for k, v in clip.poses.items()})
+    return _stitch(clips, hold_frames, transition_frames)
+
+
+def _table_tracks(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    from signsplat.io.tables import read_table
+
+    df = read_table(path, "smplx_params").sort_values("frame")
+    if df.empty:
+        raise InputError(f"{path}: smplx_params table has no rows")
+    out = {}
+    for col in [*ROTATION_BLOCKS, "expression", "transl", "betas"]:
+        if col in df.columns:
+            out[col] = np.stack([np.asarray(v, np.float64) for v in df[col]])
+    return out
+
+
+def _fit(a: np.ndarray | None, T: int, k: int) -> np.ndarray:
+    """(T, k) float32 from a (T, j) track: truncated or zero-padded to k columns."""
+    out = np.zeros((T, k), np.float32)
+    if a is not None and a.size:
+        a = np.asarray(a, np.float32).reshape(T, -1)
+        m = min(k, a.shape[1])
+        out[:, :m] = a[:, :m]
+    return out
+
+
+def build_motion(scene: Mapping[str, Any], gloss_path: str | os.PathLike | None,
+                 num_betas: int = 10, num_expression: int = 10) -> dict[str, np.ndarray]:
+    """SMPL-X parameters of every frame of a scene: dict block -> (T, k) float32.
+
+    Blocks: ``betas`` (T, num_betas), ``expression`` (T, num_expression), the pose blocks of
+    :data:`signsplat.body.joints.POSE_BLOCKS` and ``transl`` (T, 3). ``T`` is the motion's
+    length capped at ``max_frames``.
+    """
+    motion = scene["motion"]
+    if motion.get("tracks"):
+        tracks = _table_tracks(motion["tracks"])
+    elif motion.get("glosses"):
+        if gloss_path is None:
+            raise SceneError("motion.glosses needs a gloss library (--glosses)")
+        tracks = _gloss_tracks(motion["glosses"], gloss_path, float(scene["fps"]),
+                               int(motion["hold_frames"]), int(motion["transition_frames"]))
+    else:
+        raise SceneError("motion: give either 'glosses' (a list of gloss names) or 'tracks' "
+                         "(an smplx_params Parquet path)")
+    T = max(len(v) for v in tracks.values())
+    if scene.get("max_frames"):
+        T = min(T, int(scene["max_frames"]))
+    tracks = {k: np.asarray(v)[:T] for k, v in tracks.items()}
+    out: dict[str, np.ndarray] = {}
+    betas = np.asarray(scene["signer"]["betas"], np.float32)
+    out["betas"] = _fit(np.broadcast_to(betas, (T, len(betas))), T, num_betas)
+    expr = tracks.get("expression")
+    out["expression"] = _fit(expr, T, num_expression) * np.float32(
+        scene["signer"]["expression_scale"])
+    for name, k in POSE_BLOCKS:
+        out[name] = _fit(tracks.get(name), T, k)
+    out["transl"] = _fit(tracks.get("transl"), T, 3)
+    if not motion.get("tracks"):
+        out["global_orient"][:] = 0.0
+        out["transl"][:] = 0.0
+    return out
+
+
+def params_at(params: Mapping[str, np.ndarray], time: float) -> dict[str, np.ndarray]:
+    """Parameters at a fractional frame index ``time`` (clamped to the track), each (1, k).
+
+    Axis-angle blocks are SLERPed per joint between the neighbouring frames, others linear.
+    """
+    T = len(next(iter(params.values())))
+    time = float(np.clip(time, 0, T - 1))
+    i0 = int(np.floor(time))
+    i1 = min(i0 + 1, T - 1)
+    w = time - i0
+    out = {}
+    for k, v in params.items():
+        a, b = np.asarray(v[i0], np.float64), np.asarray(v[i1], np.float64)
+        if w == 0.0 or i0 == i1:
+            out[k] = a[None].astype(np.float32)
+        elif k in ROTATION_BLOCKS:
+            out[k] = _slerp_rotvec(a, b, np.array([w])).astype(np.float32)
+        else:
+            out[k] = ((1 - w) * a + w * b)[None].astype(np.float32)
+    return out
+
+
+def scene_name(scene: Mapping[str, Any], out_dir: str | os.PathLike) -> str:
+    """The scene's name, or the folder above ``out_dir`` (``results/<scene>/sim``)."""
+    if scene.get("name"):
+        return str(scene["name"])
+    out = Path(out_dir).resolve()
+    return out.parent.name if out.name == "sim" else out.name

@@ -1,0 +1,427 @@
+"""The ``simulate`` stage: render a synthetic signer scene with the independent mesh renderer.
+
+:func:`simulate_scene` poses the body model along the scene's motion, renders every view and
+frame with :mod:`signsplat.synth.mesh_render` (never the splat rasterizer), applies only the
+effects the scene lists (:mod:`signsplat.synth.effects`) and writes, each file atomically::
+
+    <out>/images/{view:02d}/{frame:04d}.png   RGB, 8 bit
+    <out>/masks/{view:02d}/{frame:04d}.png    signer mask, 0/255 (occluders excluded)
+    <out>/frames.parquet                      table 'frames'
+    <out>/cameras.parquet                     table 'cameras' (frame = -1: static camera)
+    <out>/smplx_gt.parquet                    table 'smplx_params' (hand_mean 'flat')
+    <out>/keypoints_gt.parquet                table 'keypoints' + 'visible' (bool), 'depth' (m)
+
+Ground-truth keypoints: the 133 COCO-WholeBody points of ``WholeBodyRegressor`` projected into
+every view; ``visible`` = inside the image and not behind the rendered surface (occluders
+included) by more than the keypoint's own rest-pose depth below the skin plus
+``render.keypoint_tolerance``; ``score`` = visible as float; ``depth`` = camera z (m).
+Same scene and seed -> byte-identical files.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from signsplat.io.images import write_png
+from signsplat.io.tables import write_table
+from signsplat.synth import mesh_render as mr
+from signsplat.synth.effects import Camera, EffectChain, Prop, build_effects
+from signsplat.synth.scene import build_motion, camera_rig, params_at, scene_name, scene_target
+
+__all__ = ["SignerMesh", "ViewRender", "render_view", "project", "keypoint_visibility",
+           "simulate_scene", "load_signer"]
+
+
+@dataclass(frozen=True)
+class SignerMesh:
+    """What the renderer needs of the signer besides posed vertices.
+
+    Attributes:
+        faces: (F, 3) int64 triangles.
+        canonical: (V, 3) float32 rest-pose positions used as texture coordinates.
+        part_labels: (V,) int64 part of each vertex (``signsplat.body.joints.PART_*``).
+        colorize: ``(points (P,3) canonical, labels (P,)) -> (P,3)`` albedo in [0, 1].
+    """
+
+    faces: np.ndarray
+    canonical: np.ndarray
+    part_labels: np.ndarray
+    colorize: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ViewRender:
+    """One rendered view: ``rgb`` (H,W,3) float32 [0,1], ``mask`` (H,W) bool signer coverage
+    >= 0.5, ``depth`` (H,W) float32 nearest surface in each pixel (signer or prop, metres,
+    inf = empty), ``coverage`` (H,W) float32 fraction of samples showing the signer."""
+
+    rgb: np.ndarray
+    mask: np.ndarray
+    depth: np.ndarray
+    coverage: np.ndarray
+
+
+def _block_min(a: np.ndarray, s: int) -> np.ndarray:
+    if s == 1:
+        return a
+    h, w = a.shape[0] // s, a.shape[1] // s
+    return a.reshape(h, s, w, s).min(axis=(1, 3))
+
+
+def _shade_samples(raster: mr.Raster, verts: np.ndarray, faces: np.ndarray, n_signer: int,
+                   signer: SignerMesh, prop_colors: np.ndarray | None,
+                   prop_normals: np.ndarray | None, chain: EffectChain,
+                   cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Colour (Hs,Ws,3) float32 and signer coverage (Hs,Ws) bool of one raster."""
+    H, W = raster.shape
+    rgb = np.zeros((H, W, 3), np.float32)
+    drawn = raster.mask
+    fid = raster.face_id[drawn]
+    bary = raster.bary[drawn]
+    is_signer = fid < n_signer
+    colors = np.empty((len(fid), 3), np.float32)
+    sf, sb = fid[is_signer], bary[is_signer]
+    canon = mr.interpolate_at(signer.faces, signer.canonical, sf, sb)
+    labels = mr.nearest_corner(signer.faces, signer.part_labels, sf, sb)
+    colors[is_signer] = np.clip(signer.colorize(canon, labels), 0.0, 1.0)
+    if prop_colors is not None:
+        colors[~is_signer] = prop_colors[fid[~is_signer] - n_signer]
+    shaders = chain.at("shade")
+    if shaders:
+        normals = np.empty((len(fid), 3), np.float32)
+        vn = mr.vertex_normals(verts[: signer.canonical.shape[0]], signer.faces)
+        normals[is_signer] = mr.interpolate_at(signer.faces, vn, sf, sb)
+        if prop_normals is not None:
+            normals[~is_signer] = prop_normals[fid[~is_signer] - n_signer]
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        points = mr.interpolate_at(faces, verts, fid, bary)
+        for effect in shaders:
+            colors = effect.shade(colors, normals, points, cam)
+    rgb[drawn] = colors
+    signer_hit = np.zeros((H, W), bool)
+    signer_hit[drawn] = is_signer
+    return rgb, signer_hit
+
+
+def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: SignerMesh,
+                cam: Camera, chain: EffectChain, view: int, frame: int,
+                target: np.ndarray, supersample: int = 2, near: float = 0.05,
+                depth_pose: np.ndarray | None = None) -> ViewRender:
+    """Render the signer (and any props of geometry effects) in one camera.
+
+    Args:
+        poses: S posed vertex arrays (V, 3) world metres; S > 1 for motion blur.
+        weights: (S,) weights of the poses in the colour and coverage average.
+        signer: faces, texture coordinates and albedo function.
+        cam: the camera of this view and frame (after camera effects).
+        chain: the scene's effects (only geometry/shade/background/image hooks are used here).
+        target: (3,) point the rig looks at (used to place props).
+        supersample: s, samples per pixel s x s, box-filtered.
+        near: near-plane depth in metres.
+        depth_pose: (V, 3) pose whose nearest-surface depth is returned (default: the pose
+            when S == 1; with S > 1 this extra pose is rasterized for depth only).
+    """
+    s = int(supersample)
+    K_hi = mr.scale_intrinsics(cam.K, s)
+    Wh, Hh = cam.width * s, cam.height * s
+    hi_cam = Camera(K_hi, cam.R, cam.t, Wh, Hh)
+    props: list[Prop] = [p for e in chain.at("geometry")
+                         for p in e.geometry(cam, view, frame, target)]
+    n_signer = signer.faces.shape[0]
+    n_vert = signer.canonical.shape[0]
+    prop_colors = prop_normals = None
+    if props:
+        offs = np.cumsum([n_vert] + [len(p.vertices) for p in props])[:-1]
+        faces = np.concatenate([signer.faces] + [p.faces + o for p, o in zip(props, offs)])
+        prop_colors = np.concatenate([np.repeat(p.color[None], len(p.faces), 0) for p in props])
+        prop_normals = np.concatenate([mr.face_normals(p.vertices, p.faces) for p in props])
+        prop_verts = np.concatenate([p.vertices for p in props])
+    else:
+        faces, prop_verts = signer.faces, None
+
+    def scene_vertices(v):
+        v = np.asarray(v, np.float64)
+        return v if prop_verts is None else np.concatenate([v, prop_verts])
+
+    acc_rgb = np.zeros((Hh, Wh, 3), np.float32)
+    acc_cov = np.zeros((Hh, Wh), np.float32)  # signer samples
+    acc_alpha = np.zeros((Hh, Wh), np.float32)  # signer or prop samples
+    depth_hi = None
+    for v, w in zip(poses, weights):
+        verts = scene_vertices(v)
+        raster = mr.rasterize(verts, faces, K_hi, cam.R, cam.t, Wh, Hh, near)
+        rgb, hit = _shade_samples(raster, verts, faces, n_signer, signer, prop_colors,
+                                  prop_normals, chain, hi_cam)
+        if len(poses) == 1:
+            acc_rgb, acc_cov, depth_hi = rgb, hit.astype(np.float32), raster.depth
+            acc_alpha = raster.mask.astype(np.float32)
+        else:
+            acc_rgb += np.float32(w) * rgb
+            acc_cov += np.float32(w) * hit
+            acc_alpha += np.float32(w) * raster.mask
+    if depth_hi is None:
+        pose = poses[len(poses) // 2] if depth_pose is None else depth_pose
+        depth_hi = mr.rasterize(scene_vertices(pose), faces, K_hi, cam.R, cam.t, Wh, Hh,
+                                near).depth
+    rgb = mr.downsample(acc_rgb, s)
+    coverage = mr.downsample(acc_cov, s).astype(np.float32)
+    for effect in chain.at("background"):
+        alpha = mr.downsample(acc_alpha, s)
+        bg = effect.background(view, frame, cam.height, cam.width)
+        rgb = rgb + bg * (1.0 - alpha)[..., None]
+    for effect in chain.at("image"):
+        rgb = effect.image(rgb, view, frame)
+    rgb = np.clip(rgb, 0.0, 1.0).astype(np.float32)
+    return ViewRender(rgb, coverage >= 0.5, _block_min(depth_hi, s), coverage)
+
+
+# --- keypoints -----------------------------------------------------------------------------
+
+def project(points: np.ndarray, cam: Camera, near: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points (N, 3) -> pixels (N, 2) float64 (NaN behind the camera), depth (N,)."""
+    pc = mr.camera_depth(points, cam.R, cam.t)
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (pc[:, :2] / z[:, None]) * np.diag(cam.K)[:2] + cam.K[:2, 2]
+    uv[z <= near] = np.nan
+    return uv, z
+
+
+def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
+                        tolerance: np.ndarray | float) -> np.ndarray:
+    """Visible keypoints: inside the image and not behind the rendered surface.
+
+    Args:
+        uv: (N, 2) pixel coordinates (NaN = behind the camera).
+        z: (N,) camera depth of the keypoints (m).
+        depth: (H, W) nearest rendered surface per pixel (m, inf = empty).
+        tolerance: scalar or (N,) slack in metres (keypoints inside the body sit below the
+            skin by up to this much).
+
+    Returns:
+        (N,) bool. A keypoint over an empty pixel is not visible (it is not on the body).
+    """
+    H, W = depth.shape
+    finite = np.isfinite(uv).all(axis=1)
+    px = np.full(len(uv), -1, np.int64)
+    py = np.full(len(uv), -1, np.int64)
+    px[finite] = np.floor(uv[finite, 0] + 0.5).astype(np.int64)
+    py[finite] = np.floor(uv[finite, 1] + 0.5).astype(np.int64)
+    inside = finite & (px >= 0) & (px < W) & (py >= 0) & (py < H)
+    surf = np.full(len(uv), np.inf)
+    surf[inside] = depth[py[inside], px[inside]]
+    tol = np.broadcast_to(np.asarray(tolerance, np.float64), z.shape)
+    return inside & np.isfinite(surf) & (z <= surf + tol)
+
+
+# --- body ----------------------------------------------------------------------------------
+
+def load_signer(body_path: str | os.PathLike, appearance_seed: int = 0):
+    """Body model, its :class:`SignerMesh` and the keypoint regressor.
+
+    Albedo per pixel comes from ``signsplat.body.appearance.albedo`` at canonical rest-pose
+    positions; without it, interpolated ``vertex_colors`` (grey when the file has none).
+    """
+    import torch
+
+    from signsplat.body.keypoints import WholeBodyRegressor
+    from signsplat.body.model import BodyModel
+
+    model = BodyModel.from_file(body_path)
+    model.eval()
+    faces = model.faces.detach().cpu().numpy().astype(np.int64)
+    canonical = model.v_template.detach().cpu().numpy().astype(np.float32)
+    labels = model.part_labels.detach().cpu().numpy().astype(np.int64)
+    try:
+        from signsplat.body.appearance import albedo
+    except ImportError:
+        albedo = None
+    if albedo is not None:
+        def colorize(points, part_labels):
+            return np.asarray(albedo(points, part_labels, appearance_seed), np.float32)
+    else:
+        vc = getattr(model, "vertex_colors", None)
+        vc = (np.full((len(canonical), 3), 0.7, np.float32) if vc is None
+              else torch.as_tensor(vc).detach().cpu().numpy().astype(np.float32))
+        tree = _NearestVertex(canonical)
+
+        def colorize(points, part_labels):
+            return vc[tree(points)]
+    signer = SignerMesh(faces, canonical, labels, colorize)
+    return model, signer, WholeBodyRegressor(model)
+
+
+class _NearestVertex:
+    """Index of the nearest canonical vertex of each query point (KD-tree)."""
+
+    def __init__(self, vertices: np.ndarray) -> None:
+        from scipy.spatial import cKDTree
+
+        self._tree = cKDTree(vertices)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        return self._tree.query(points)[1]
+
+
+def _pose(model, params: Mapping[str, np.ndarray], regressor=None, chunk: int = 32):
+    """Posed vertices (T, V, 3) float64 and keypoints (T, 133, 3) (None without regressor)."""
+    import torch
+
+    T = len(params["betas"])
+    verts, kps = [], []
+    with torch.no_grad():
+        for i in range(0, T, chunk):
+            batch = {k: torch.as_tensor(np.asarray(v[i:i + chunk]), dtype=torch.float32)
+                     for k, v in params.items()}
+            out = model(**batch)
+            verts.append(out.vertices.detach().cpu().numpy().astype(np.float64))
+            if regressor is not None:
+                kps.append(np.asarray(regressor(out).detach().cpu().numpy(), np.float64))
+    return np.concatenate(verts), (np.concatenate(kps) if regressor is not None else None)
+
+
+def _keypoint_depth_below_skin(model, regressor, betas: np.ndarray) -> np.ndarray:
+    """(133,) distance (m) from each rest-pose keypoint to the nearest mesh vertex."""
+    from scipy.spatial import cKDTree
+
+    rest = {"betas": betas[None, :]}
+    verts, kps = _pose(model, rest, regressor)
+    return cKDTree(verts[0]).query(kps[0])[0]
+
+
+# --- tables --------------------------------------------------------------------------------
+
+def _smplx_table(params: Mapping[str, np.ndarray], scene: str) -> pd.DataFrame:
+    T = len(params["betas"])
+    data: dict[str, Any] = {"scene": [scene] * T, "frame": np.arange(T, dtype=np.int32)}
+    for k in ("betas", "expression", "global_orient", "body_pose", "jaw_pose", "leye_pose",
+              "reye_pose", "left_hand_pose", "right_hand_pose", "transl"):
+        data[k] = [np.asarray(row, np.float32) for row in params[k]]
+    return pd.DataFrame(data)
+
+
+def _camera_rows(scene: str, view: int, frame: int, cam: Camera) -> dict[str, Any]:
+    return {"scene": scene, "view": view, "frame": frame, "width": cam.width,
+            "height": cam.height, "fx": float(cam.K[0, 0]), "fy": float(cam.K[1, 1]),
+            "cx": float(cam.K[0, 2]), "cy": float(cam.K[1, 2]),
+            "R": np.asarray(cam.R, np.float64).reshape(9), "t": np.asarray(cam.t, np.float64)}
+
+
+def _cameras_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    df = pd.DataFrame(rows)
+    for c in ("view", "frame", "width", "height"):
+        df[c] = df[c].astype(np.int32)
+    return df
+
+
+# --- the stage -----------------------------------------------------------------------------
+
+def simulate_scene(scene: Mapping[str, Any], body_path: str | os.PathLike,
+                   gloss_path: str | os.PathLike | None, out_dir: str | os.PathLike,
+                   threads: int = 1, progress: bool = True) -> dict[str, Any]:
+    """Simulate one scene (validated spec dict) into ``out_dir``; see the module docstring.
+
+    Returns a summary: ``frames``, ``views``, ``seconds`` (render + write), ``per_view_frame``
+    (seconds per rendered image) and the written paths.
+    """
+    import numba
+    import torch
+    from tqdm import tqdm
+
+    t_start = time.perf_counter()
+    threads = max(1, int(threads))
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    torch.set_num_threads(threads)
+    out = Path(out_dir)
+    name = scene_name(scene, out)
+    seed = int(scene.get("seed", 0))
+    chain = build_effects(scene.get("effects", []), seed)
+    render_cfg = scene.get("render", {})
+    ss = int(render_cfg.get("supersample", 2))
+    near = float(render_cfg.get("near", 0.05))
+    kp_tol = float(render_cfg.get("keypoint_tolerance", 0.015))
+
+    model, signer, regressor = load_signer(body_path, int(scene["signer"]["appearance_seed"]))
+    params = build_motion(scene, gloss_path, model.num_betas, model.num_expression)
+    T = len(params["betas"])
+    verts, kps = _pose(model, params, regressor)
+    tol = _keypoint_depth_below_skin(model, regressor, params["betas"][0]) + kp_tol
+
+    blur = chain.at("subframes")
+    if blur:
+        offsets, weights = blur[0].subframes()
+        sub_params = [params_at(params, f + o) for f in range(T) for o in offsets]
+        merged = {k: np.concatenate([p[k] for p in sub_params]) for k in params}
+        sub_verts = _pose(model, merged)[0].reshape(T, len(offsets), -1, 3)
+    else:
+        weights = np.ones(1)
+    t_pose = time.perf_counter()
+
+    rig = camera_rig(scene["cameras"])
+    target = scene_target(scene["cameras"])
+    cam_effects = chain.at("camera")
+    fps = float(scene["fps"])
+    frame_rows, cam_rows = [], []
+    kp_cols: dict[str, list[np.ndarray]] = {k: [] for k in
+                                            ("view", "frame", "kp", "x", "y", "visible", "depth")}
+    if not cam_effects:
+        cam_rows = [_camera_rows(name, v, -1, cam) for v, cam in enumerate(rig)]
+    n_kp = kps.shape[1]
+    t_render = 0.0
+    for f in tqdm(range(T), desc=f"simulate {name}", unit="frame", disable=not progress):
+        poses = list(sub_verts[f]) if blur else [verts[f]]
+        for v, base in enumerate(rig):
+            cam = base
+            for effect in cam_effects:
+                cam = effect.camera(cam, v, f)
+            if cam_effects:
+                cam_rows.append(_camera_rows(name, v, f, cam))
+            t0 = time.perf_counter()
+            result = render_view(poses, weights, signer, cam, chain, v, f, target, ss, near,
+                                 depth_pose=verts[f] if blur else None)
+            t_render += time.perf_counter() - t0
+            image = f"images/{v:02d}/{f:04d}.png"
+            mask = f"masks/{v:02d}/{f:04d}.png"
+            write_png(out / image, np.round(result.rgb * 255.0).astype(np.uint8))
+            write_png(out / mask, np.where(result.mask, 255, 0).astype(np.uint8))
+            frame_rows.append({"scene": name, "view": v, "frame": f, "time": f / fps,
+                               "image": image, "mask": mask})
+            uv, z = project(kps[f], cam)
+            vis = keypoint_visibility(uv, z, result.depth, tol)
+            kp_cols["view"].append(np.full(n_kp, v, np.int32))
+            kp_cols["frame"].append(np.full(n_kp, f, np.int32))
+            kp_cols["kp"].append(np.arange(n_kp, dtype=np.int16))
+            kp_cols["x"].append(uv[:, 0].astype(np.float32))
+            kp_cols["y"].append(uv[:, 1].astype(np.float32))
+            kp_cols["visible"].append(vis)
+            kp_cols["depth"].append(z.astype(np.float32))
+
+    frames = pd.DataFrame(frame_rows).astype({"view": np.int32, "frame": np.int32})
+    keypoints = pd.DataFrame({k: np.concatenate(v) for k, v in kp_cols.items()})
+    keypoints.insert(0, "scene", name)
+    keypoints.insert(6, "score", keypoints["visible"].astype(np.float32))
+    body_name = Path(body_path).name
+    paths = {
+        "frames": write_table(frames, out / "frames.parquet", "frames"),
+        "cameras": write_table(_cameras_table(cam_rows), out / "cameras.parquet", "cameras",
+                               metadata={"effects": ",".join(chain.names)}),
+        "smplx": write_table(_smplx_table(params, name), out / "smplx_gt.parquet",
+                             "smplx_params",
+                             metadata={"hand_mean": "flat", "body_model": body_name}),
+        "keypoints": write_table(keypoints, out / "keypoints_gt.parquet", "keypoints",
+                                 metadata={"source": "ground truth", "body_model": body_name}),
+    }
+    t_end = time.perf_counter()
+    n_img = T * len(rig)
+    return {"scene": name, "frames": T, "views": len(rig), "images": n_img,
+            "seconds": t_end - t_start, "pose_seconds": t_pose - t_start,
+            "render_seconds": t_render,
+            "per_view_frame": (t_end - t_pose) / max(n_img, 1), "paths": paths}
