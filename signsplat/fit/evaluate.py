@@ -1,0 +1,158 @@
+"""Fit accuracy against ground truth (numpy): alignment, MPJPE, PA-MPJPE, cameras, jitter.
+
+Point sets are ``(T, N, 3)`` float64 in metres; results are in millimetres (``*_mm``),
+degrees or pixels as named. The fitted world frame is a free gauge (fixed by a reference camera
+during the solve), so before 3D errors are taken the fit is brought into the ground-truth frame
+with one transform for the whole sequence, estimated from the cameras (see
+:func:`gauge_alignment`). Per-part errors then remove the part's root (pelvis, wrist, face
+centroid) per frame; PA- errors use a per-frame similarity (Procrustes) instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from signsplat.fit.cameras import Rig
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``x_dst = s * R @ x_src + t``."""
+
+    s: float
+    R: np.ndarray  # (3,3)
+    t: np.ndarray  # (3,)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """x (..., 3) -> (..., 3)."""
+        return self.s * x @ self.R.T + self.t
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True,
+            weights: np.ndarray | None = None) -> Similarity:
+    """Least-squares similarity (Umeyama 1991) mapping ``src (N,3)`` onto ``dst (N,3)``.
+
+    Degenerate inputs (all points equal) give the identity rotation and a pure translation.
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    w = w / max(w.sum(), 1e-12)
+    mu_s = w @ src
+    mu_d = w @ dst
+    xs, xd = src - mu_s, dst - mu_d
+    cov = (xd * w[:, None]).T @ xs
+    U, S, Vt = np.linalg.svd(cov)
+    D = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[2, 2] = -1
+    R = U @ D @ Vt
+    var_s = float(w @ np.sum(xs**2, axis=1))
+    s = float(np.trace(np.diag(S) @ D) / var_s) if (with_scale and var_s > 1e-12) else 1.0
+    t = mu_d - s * R @ mu_s
+    return Similarity(s, R, t)
+
+
+def procrustes_batch(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Per-frame similarity alignment of ``pred (T,N,3)`` onto ``gt (T,N,3)``; returns aligned."""
+    out = np.empty_like(pred, dtype=float)
+    for i in range(len(pred)):
+        out[i] = umeyama(pred[i], gt[i], with_scale=True).apply(pred[i])
+    return out
+
+
+def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """Geodesic angle between rotations (..,3,3) in degrees."""
+    M = np.einsum("...ji,...jk->...ik", Ra, Rb)
+    c = (np.trace(M, axis1=-2, axis2=-1) - 1) / 2
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _camera_axes_points(rig: Rig, length: float) -> np.ndarray:
+    """Centre plus points along each camera's z and y axes, (3V, 3)."""
+    C = rig.centres()
+    z = rig.R[:, 2, :]
+    y = rig.R[:, 1, :]
+    return np.concatenate([C, C + length * z, C + length * y])
+
+
+def gauge_alignment(fit: Rig, gt: Rig, min_spread: float = 0.05) -> tuple[Similarity, str]:
+    """Transform taking the fitted world frame onto the ground-truth world frame.
+
+    With >= 3 cameras whose centres span more than ``min_spread`` metres in two directions, a
+    similarity (Umeyama) on the centres; otherwise (one camera, two, or nearly coincident or
+    collinear centres) a rigid transform from the centres plus points 1 m along each camera's
+    optical and vertical axes, which also uses the camera orientations. Returns (transform,
+    method name).
+    """
+    C_fit, C_gt = fit.centres(), gt.centres()
+    if len(C_gt) >= 3:
+        sv = np.linalg.svd(C_gt - C_gt.mean(0), compute_uv=False)
+        if sv[1] > min_spread:
+            return umeyama(C_fit, C_gt, with_scale=True), "similarity_centres"
+    return umeyama(_camera_axes_points(fit, 1.0), _camera_axes_points(gt, 1.0),
+                   with_scale=False), "rigid_axes"
+
+
+def align_rig(fit: Rig, sim: Similarity) -> Rig:
+    """Express a rig in the destination frame of ``sim`` (``x_dst = s R x_src + t``)."""
+    R_new = fit.R @ sim.R.T
+    C_new = sim.apply(fit.centres())
+    t_new = -np.einsum("vij,vj->vi", R_new, C_new)
+    return Rig(K=fit.K, R=R_new, t=t_new, width=fit.width, height=fit.height)
+
+
+def camera_errors(fit: Rig, gt: Rig) -> dict[str, float]:
+    """Rotation (deg) and centre (m) errors per the gauge alignment; means and maxima."""
+    sim, method = gauge_alignment(fit, gt)
+    al = align_rig(fit, sim)
+    rot = rotation_angle_deg(al.R, gt.R)
+    cen = np.linalg.norm(al.centres() - gt.centres(), axis=-1)
+    f_err = np.abs(fit.K[:, 0, 0] - gt.K[:, 0, 0]) / gt.K[:, 0, 0]
+    return {"rotation_deg_mean": float(rot.mean()), "rotation_deg_max": float(rot.max()),
+            "centre_m_mean": float(cen.mean()), "centre_m_max": float(cen.max()),
+            "focal_rel_err_mean": float(f_err.mean()), "scale": float(sim.s),
+            "alignment": method}
+
+
+def mpjpe_mm(pred: np.ndarray, gt: np.ndarray, root: np.ndarray | int | None) -> float:
+    """Mean per-joint position error in mm after removing a per-frame root.
+
+    pred, gt (T,N,3) metres. ``root``: an index into N, an index array (their mean is the root),
+    or None (no root removal).
+    """
+    if root is not None:
+        idx = np.atleast_1d(root)
+        pred = pred - pred[:, idx].mean(1, keepdims=True)
+        gt = gt - gt[:, idx].mean(1, keepdims=True)
+    return float(np.linalg.norm(pred - gt, axis=-1).mean() * 1000)
+
+
+def pa_mpjpe_mm(pred: np.ndarray, gt: np.ndarray) -> float:
+    """MPJPE in mm after a per-frame similarity (Procrustes) alignment."""
+    return float(np.linalg.norm(procrustes_batch(pred, gt) - gt, axis=-1).mean() * 1000)
+
+
+def acceleration_error_mm(pred: np.ndarray, gt: np.ndarray, root: int | None = None) -> float:
+    """Jitter: mean norm of the difference of second differences (mm / frame^2). T >= 3."""
+    if len(pred) < 3:
+        return float("nan")
+    if root is not None:
+        pred = pred - pred[:, root:root + 1]
+        gt = gt - gt[:, root:root + 1]
+    acc_p = pred[2:] - 2 * pred[1:-1] + pred[:-2]
+    acc_g = gt[2:] - 2 * gt[1:-1] + gt[:-2]
+    return float(np.linalg.norm(acc_p - acc_g, axis=-1).mean() * 1000)
+
+
+def reprojection_px(uv: np.ndarray, kp: np.ndarray) -> float:
+    """Mean pixel distance between projections ``uv (...,2)`` and observations ``kp (...,3)``.
+
+    Only observations with score > 0 count; NaN when none does.
+    """
+    m = kp[..., 2] > 0
+    if not m.any():
+        return float("nan")
+    return float(np.linalg.norm(uv[m] - kp[..., :2][m], axis=-1).mean())

@@ -1,0 +1,132 @@
+"""Loss terms of the fit (torch). Every weight is a named field of :class:`Weights`.
+
+Shapes: ``T`` frames, ``V`` views, 133 COCO-WholeBody keypoints. Observations are
+``obs (V,T,133,3)`` float: pixel x, y and a confidence (0 = ignore). Every term is normalised
+per frame so the weights do not depend on the sequence length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+
+from signsplat.body import joints as J
+from signsplat.fit.cameras import project
+from signsplat.fit.robust import kernel as robust_kernel
+
+
+@dataclass
+class Weights:
+    """Loss weights (config section ``fit.weights``; units in brackets)."""
+
+    reprojection: float = 1.0  # robust px^2 per keypoint
+    body_pose: float = 2.0  # rad^-2 on body_pose (upper body)
+    leg_pose: float = 50.0  # rad^-2 on hips/knees/ankles/feet (usually out of view)
+    shape: float = 5.0  # on betas^2
+    expression: float = 1.0  # on expression^2
+    jaw: float = 10.0  # rad^-2 on jaw_pose
+    hand_pose: float = 0.5  # rad^-2 on anatomical hand angles (pull towards the flat hand)
+    smooth_keypoints: float = 2000.0  # m^-2 on 3D keypoint accelerations
+    smooth_pose: float = 10.0  # rad^-2 on pose-parameter accelerations
+    behind_camera: float = 100.0  # m^-2 on depth below the near plane
+    anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
+
+    @classmethod
+    def from_config(cls, cfg: dict | None) -> "Weights":
+        cfg = dict(cfg or {})
+        known = {f.name for f in fields(cls)}
+        unknown = set(cfg) - known
+        if unknown:
+            raise ValueError(f"unknown loss weight(s) {sorted(unknown)}; known {sorted(known)}")
+        return cls(**cfg)
+
+
+LEG_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+    "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "left_foot", "right_foot"))
+
+
+def body_pose_weights(w: Weights, dtype=torch.float32, device="cpu") -> torch.Tensor:
+    """Per-value weights (63,) of the body-pose prior: legs heavier than the upper body."""
+    per_joint = torch.full((J.NUM_BODY_JOINTS,), w.body_pose, dtype=dtype, device=device)
+    for j in LEG_JOINTS:
+        per_joint[j - 1] = w.leg_pose
+    return per_joint.repeat_interleave(3)
+
+
+def part_weight_vector(part_weights: dict[str, float], dtype=torch.float32,
+                       device="cpu") -> torch.Tensor:
+    """Per-keypoint weights (133,) from part weights (keys of ``joints.KEYPOINT_PARTS``)."""
+    w = torch.zeros(J.NUM_KEYPOINTS, dtype=dtype, device=device)
+    for part, idx in J.KEYPOINT_PARTS.items():
+        w[list(idx)] = float(part_weights.get(part, 1.0))
+    return w
+
+
+def reprojection(kp3d: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+                 obs: torch.Tensor, kp_weight: torch.Tensor, kernel: str, sigma_px: float,
+                 near: float = 0.05) -> tuple[torch.Tensor, torch.Tensor]:
+    """Confidence-weighted robust 2D reprojection over all views.
+
+    kp3d (T,133,3) world metres; K, R, t (V,...) cameras; obs (V,T,133,3); kp_weight (133,).
+    Returns (data term: sum over views/keypoints, mean over frames; near-plane violation term:
+    sum of squared metres below ``near`` over observed points, mean over frames).
+    """
+    uv, z = project(kp3d, K, R, t)
+    r2 = ((uv - obs[..., :2]) ** 2).sum(-1)
+    w = obs[..., 2] * kp_weight
+    rho = robust_kernel(kernel)(r2, sigma_px)
+    front = (z > near).to(w.dtype)
+    T = max(kp3d.shape[0], 1)
+    data = (w * front * rho).sum() / T
+    behind = ((w > 0).to(z.dtype) * torch.relu(near - z) ** 2).sum() / T
+    return data, behind
+
+
+def acceleration(x: torch.Tensor) -> torch.Tensor:
+    """Second differences along dim 0: (T,...) -> (T-2,...) (empty when T < 3)."""
+    return x[2:] - 2 * x[1:-1] + x[:-2]
+
+
+def smoothness(kp3d: torch.Tensor, pose: torch.Tensor, contiguous: torch.Tensor | None,
+               w: Weights) -> torch.Tensor:
+    """Temporal smoothness: accelerations of 3D keypoints (m) and of pose vectors (rad).
+
+    kp3d (T,133,3); pose (T,P) concatenated pose parameters; contiguous (T-2,) bool marks
+    triplets of consecutive frames (a gap in the frame numbers breaks smoothness).
+    """
+    T = kp3d.shape[0]
+    if T < 3:
+        return kp3d.new_zeros(())
+    a_kp = (acceleration(kp3d) ** 2).sum((-1, -2))
+    a_pose = (acceleration(pose) ** 2).sum(-1)
+    terms = w.smooth_keypoints * a_kp + w.smooth_pose * a_pose
+    if contiguous is not None:
+        terms = terms * contiguous.to(terms.dtype)
+    return terms.sum() / T
+
+
+def priors(params, w: Weights, pose_w: torch.Tensor) -> torch.Tensor:
+    """Pose, shape, face and hand priors of :class:`~signsplat.fit.bodyfit.FitParams`, per frame."""
+    T = max(params.num_frames, 1)
+    loss = (pose_w * params.body_pose ** 2).sum() / T
+    loss = loss + w.shape * (params.betas ** 2).sum()
+    loss = loss + w.expression * (params.expression ** 2).sum() / T
+    loss = loss + w.jaw * (params.jaw_pose ** 2).sum() / T
+    if w.hand_pose > 0:
+        hands = sum((params.hand_anatomical(s) ** 2).sum() for s in ("left", "right"))
+        loss = loss + w.hand_pose * hands / T
+    return loss
+
+
+def anchor(params, init: dict[str, torch.Tensor], w: Weights) -> torch.Tensor:
+    """Distance of pose/translation blocks to an initial estimate (single-view refinement)."""
+    if w.anchor <= 0 or not init:
+        return params.transl.new_zeros(())
+    T = max(params.num_frames, 1)
+    total = params.transl.new_zeros(())
+    for name in ("global_orient", "body_pose", "transl"):
+        if name in init:
+            total = total + ((getattr(params, name) - init[name]) ** 2).sum()
+    return w.anchor * total / T

@@ -1,0 +1,194 @@
+"""The optimisation loop shared by the multi-view and single-view fits (torch, CPU or GPU).
+
+A fit is a list of :class:`Stage` s. Each stage optimises some parameter groups (``betas``,
+``root``, ``body``, ``hands``, ``face``, ``cameras``) with Adam and a cosine learning-rate
+decay, batched over the frames it is given. :func:`run_warm_started` runs a stage chunk by chunk
+along the sequence, initialising each chunk from the last solved frame of the previous one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from signsplat.fit import objective as obj
+from signsplat.fit.bodyfit import FitParams, KeypointModel
+from signsplat.fit.cameras import CameraParams
+
+log = logging.getLogger(__name__)
+
+GROUPS = ("betas", "root", "body", "hands", "face", "cameras")
+
+
+@dataclass
+class Stage:
+    """One optimisation stage (config ``fit.<mode>.stages[i]``)."""
+
+    name: str
+    iterations: int
+    lr: float
+    groups: tuple[str, ...]
+    parts: dict[str, float] = field(default_factory=dict)  # keypoint part weights
+    lr_scale: dict[str, float] = field(default_factory=dict)  # per group, relative to lr
+    smooth: bool = True
+    final_lr_fraction: float = 0.05
+
+    @classmethod
+    def from_config(cls, cfg: dict) -> "Stage":
+        groups = tuple(cfg["groups"])
+        bad = set(groups) - set(GROUPS)
+        if bad:
+            raise ValueError(f"stage {cfg.get('name')!r}: unknown group(s) {sorted(bad)}; "
+                             f"known {list(GROUPS)}")
+        return cls(name=cfg["name"], iterations=int(cfg["iterations"]), lr=float(cfg["lr"]),
+                   groups=groups, parts=dict(cfg.get("parts", {})),
+                   lr_scale=dict(cfg.get("lr_scale", {})), smooth=bool(cfg.get("smooth", True)),
+                   final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)))
+
+
+@dataclass
+class Problem:
+    """Everything a stage needs besides the parameters.
+
+    obs (V,T,133,3) torch; contiguous (T-2,) bool; robust kernel name and scale in pixels.
+    """
+
+    kpm: KeypointModel
+    obs: torch.Tensor
+    weights: obj.Weights
+    kernel: str = "geman_mcclure"
+    sigma_px: float = 10.0
+    contiguous: torch.Tensor | None = None
+    anchor: dict[str, torch.Tensor] = field(default_factory=dict)
+
+
+def _pose_vector(params: FitParams, sel) -> torch.Tensor:
+    return torch.cat([params.global_orient[sel], params.body_pose[sel], params.jaw_pose[sel],
+                      params.left_free[sel] * 0.1, params.right_free[sel] * 0.1], dim=-1)
+
+
+def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
+               sel: slice = slice(None)) -> dict[str, torch.Tensor]:
+    """All loss terms of the frames ``sel`` (a slice of the sequence)."""
+    w = problem.weights
+    dev, dt = params.transl.device, params.transl.dtype
+    inputs = params.model_inputs(sel)
+    _, kp3d, _ = problem.kpm(**inputs)
+    K, R, t = cams()
+    kpw = obj.part_weight_vector(stage.parts, dtype=dt, device=dev)
+    data, behind = obj.reprojection(kp3d, K, R, t, problem.obs[:, sel], kpw, problem.kernel,
+                                    problem.sigma_px)
+    terms = {"data": w.reprojection * data, "behind": w.behind_camera * behind}
+    pose_w = obj.body_pose_weights(w, dtype=dt, device=dev)
+    sub = _SubParams(params, sel)
+    terms["prior"] = obj.priors(sub, w, pose_w)
+    if stage.smooth:
+        contig = None if problem.contiguous is None else _contig(problem.contiguous, sel,
+                                                                 kp3d.shape[0])
+        terms["smooth"] = obj.smoothness(kp3d, _pose_vector(params, sel), contig, w)
+    if problem.anchor:
+        terms["anchor"] = obj.anchor(sub, {k: v[sel] for k, v in problem.anchor.items()}, w)
+    return terms
+
+
+def _contig(contiguous: torch.Tensor, sel: slice, T: int) -> torch.Tensor:
+    start = sel.start or 0
+    return contiguous[start:start + max(T - 2, 0)]
+
+
+class _SubParams:
+    """View of :class:`FitParams` restricted to frames ``sel`` (for the prior terms)."""
+
+    def __init__(self, params: FitParams, sel: slice):
+        self._p, self._sel = params, sel
+        self.betas = params.betas
+        self.body_pose = params.body_pose[sel]
+        self.expression = params.expression[sel]
+        self.jaw_pose = params.jaw_pose[sel]
+        self.global_orient = params.global_orient[sel]
+        self.transl = params.transl[sel]
+        self.num_frames = self.transl.shape[0]
+
+    def hand_anatomical(self, side: str) -> torch.Tensor:
+        return self._p.hand_anatomical(side)[self._sel]
+
+
+def _param_groups(params: FitParams, cams: CameraParams, stage: Stage) -> list[dict]:
+    groups = params.groups()
+    out = []
+    for name in stage.groups:
+        tensors = [cams.rotvec, cams.dt] + ([cams.log_focal] if cams.log_focal.requires_grad
+                                            else []) if name == "cameras" else groups[name]
+        out.append({"params": tensors, "lr": stage.lr * stage.lr_scale.get(name, 1.0),
+                    "name": name})
+    return out
+
+
+def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
+              sel: slice = slice(None)) -> list[float]:
+    """Optimise ``stage.groups`` on frames ``sel`` with Adam + cosine decay; returns losses."""
+    if stage.iterations <= 0:
+        return []
+    groups = _param_groups(params, cams, stage)
+    opt = torch.optim.Adam(groups)
+    base = [g["lr"] for g in opt.param_groups]
+    history: list[float] = []
+    for it in range(stage.iterations):
+        frac = it / max(stage.iterations - 1, 1)
+        scale = stage.final_lr_fraction + (1 - stage.final_lr_fraction) * 0.5 * (
+            1 + math.cos(math.pi * frac))
+        for g, b in zip(opt.param_groups, base):
+            g["lr"] = b * scale
+        opt.zero_grad(set_to_none=True)
+        terms = loss_terms(problem, params, cams, stage, sel)
+        loss = sum(terms.values())
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"stage {stage.name}: non-finite loss at iteration {it} "
+                                     f"({ {k: float(v) for k, v in terms.items()} })")
+        loss.backward()
+        for g in opt.param_groups:  # a non-finite gradient must never reach the parameters
+            for p in g["params"]:
+                if p.grad is not None:
+                    torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+        opt.step()
+        history.append(float(loss.detach()))
+    log.debug("stage %s: loss %.4g -> %.4g", stage.name, history[0], history[-1])
+    return history
+
+
+def copy_frame(params: FitParams, src: int, dst: slice) -> None:
+    """Warm start: copy every per-frame block of frame ``src`` into frames ``dst``."""
+    with torch.no_grad():
+        for name in ("global_orient", "transl", "body_pose", "jaw_pose", "expression",
+                     "left_free", "right_free"):
+            p = getattr(params, name)
+            p[dst] = p[src]
+
+
+def run_warm_started(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
+                     chunk: int, valid: np.ndarray | None = None) -> list[float]:
+    """Run ``stage`` chunk by chunk; chunk k starts from the last frame solved in chunk k-1.
+
+    ``valid (T,)`` bool marks frames with observations; the warm start copies the last valid
+    frame. Returns the final loss of each chunk.
+    """
+    T = params.num_frames
+    chunk = max(int(chunk), 1)
+    finals = []
+    last_valid = None
+    for start in range(0, T, chunk):
+        stop = min(start + chunk, T)
+        if last_valid is not None:
+            copy_frame(params, last_valid, slice(start, stop))
+        hist = run_stage(problem, params, cams, stage, slice(start, stop))
+        finals.append(hist[-1] if hist else float("nan"))
+        idx = np.arange(start, stop)
+        if valid is not None:
+            idx = idx[valid[start:stop]]
+        if len(idx):
+            last_valid = int(idx[-1])
+    return finals

@@ -1,0 +1,191 @@
+"""Building blocks of the fit without a body model: filters, kernels, cameras, metrics."""
+
+import numpy as np
+import pytest
+import torch
+
+from signsplat.fit import cameras as C
+from signsplat.fit import evaluate as E
+from signsplat.fit import filters as F
+from signsplat.fit import robust
+
+
+# --- filters ---------------------------------------------------------------------------------
+
+def _track(T=50, K=4, seed=0, noise=2.0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) / 25.0
+    clean = np.stack([100 + 40 * np.sin(2 * np.pi * 0.5 * t)[:, None] + np.arange(K)[None] * 5,
+                      120 + 30 * np.cos(2 * np.pi * 0.4 * t)[:, None] + np.zeros(K)[None]], -1)
+    noisy = clean + rng.normal(0, noise, clean.shape)
+    kp = np.concatenate([noisy, np.ones((T, K, 1))], -1)
+    return t, clean, kp
+
+
+def test_sanitize_counts_nan_and_zero_scores():
+    _, _, kp = _track()
+    kp[3, 0, :2] = np.nan
+    kp[4, 1, 2] = 0.0
+    kp[5, 2, 2] = np.nan
+    out, st = F.sanitize(kp, min_score=0.1)
+    assert st.nan == 1 and st.low_score == 2
+    assert np.isfinite(out).all()
+    assert out[3, 0, 2] == 0 and out[4, 1, 2] == 0 and out[5, 2, 2] == 0
+    assert st.used == kp.shape[0] * kp.shape[1] - 3
+
+
+def test_outlier_rejection_finds_a_jump():
+    _, _, kp = _track()
+    kp[20, 1, :2] += 80.0
+    out, n = F.reject_outliers(kp, radius=3, threshold_px=25.0)
+    assert out[20, 1, 2] == 0.0
+    assert n == 1
+
+
+def test_one_euro_reduces_noise_and_skips_gaps():
+    t, clean, kp = _track(noise=3.0)
+    kp[10:14, 0, 2] = 0  # a gap: untouched and not advancing the filter
+    kp[10:14, 0, :2] = 0
+    out = F.one_euro(kp, t, min_cutoff=3.0, beta=0.05)
+    m = kp[..., 2] > 0
+    err_in = np.abs(kp[..., :2] - clean)[m].mean()
+    err_out = np.abs(out[..., :2] - clean)[m].mean()
+    jit_in = np.abs(np.diff(kp[20:, 1:, :2], 2, axis=0)).mean()  # frames after the gap
+    jit_out = np.abs(np.diff(out[20:, 1:, :2], 2, axis=0)).mean()
+    assert jit_out < 0.7 * jit_in  # jitter (acceleration) reduced
+    assert err_out < err_in  # and the position error too (lag < noise here)
+    assert (out[10:14, 0, :2] == 0).all()
+    assert np.isfinite(out).all()
+
+
+# --- robust kernels ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["geman_mcclure", "huber", "l2"])
+def test_kernels_quadratic_near_zero_and_finite_gradient(name):
+    r2 = torch.tensor([0.0, 1e-4, 100.0, 1e6], requires_grad=True)
+    out = robust.kernel(name)(r2, 5.0)
+    out.sum().backward()
+    assert torch.isfinite(r2.grad).all()
+    assert out[1].item() == pytest.approx(1e-4, rel=1e-2)
+    if name == "geman_mcclure":
+        assert out[3].item() < 25.0 + 1e-3  # saturates at sigma^2
+    if name == "huber":
+        assert out[3].item() == pytest.approx(2 * 5 * 1000 - 25)
+
+
+def test_unknown_kernel_named():
+    with pytest.raises(ValueError, match="geman_mcclure"):
+        robust.kernel("cauchy")
+
+
+# --- cameras ---------------------------------------------------------------------------------
+
+def _ring(count=4, arc=150, dist=2.0):
+    K = C.intrinsics_from_fov(256, 256, 36.0)
+    rig = C.rig_prior(np.tile(K, (count, 1, 1)), [256] * count, [256] * count, count, arc, dist,
+                      np.array([0.0, 1.2, 0.0]))
+    return rig
+
+
+def test_project_matches_opencv_convention():
+    rig = _ring(1, 0)
+    X = torch.tensor([[[0.0, 1.2, 0.0], [0.1, 1.3, 0.0]]], dtype=torch.float64)
+    uv, z = C.project(X, *(torch.as_tensor(a) for a in (rig.K, rig.R, rig.t)))
+    assert uv.shape == (1, 1, 2, 2)
+    assert uv[0, 0, 0].numpy() == pytest.approx([127.5, 127.5], abs=1e-6)
+    assert z[0, 0, 0].item() == pytest.approx(2.0)
+    # +x world (signer's left) appears on the image's right for a camera in front (+z)
+    assert uv[0, 0, 1, 0] > uv[0, 0, 0, 0]
+    assert uv[0, 0, 1, 1] < uv[0, 0, 0, 1]  # up is image -y
+
+
+def test_pnp_recovers_pose_from_noisy_points():
+    rng = np.random.default_rng(1)
+    rig = _ring(3)
+    pts = rng.normal([0, 1.2, 0], [0.2, 0.3, 0.1], (30, 3))
+    for v in range(3):
+        uv = C.project(torch.as_tensor(pts)[None], *(torch.as_tensor(a[v:v + 1]) for a in
+                                                      (rig.K, rig.R, rig.t)))[0][0, 0].numpy()
+        uv += rng.normal(0, 0.5, uv.shape)
+        R, t, rms = C.pnp(pts, uv, rig.K[v])
+        assert E.rotation_angle_deg(R, rig.R[v]) < 1.0
+        assert np.linalg.norm(-R.T @ t - rig.centres()[v]) < 0.05
+        assert rms < 2.0
+
+
+def test_pnp_refuses_too_few_or_nan_points():
+    rig = _ring(1, 0)
+    assert C.pnp(np.zeros((3, 3)), np.zeros((3, 2)), rig.K[0]) is None
+    pts = np.random.default_rng(0).normal(size=(6, 3)) + [0, 0, 3]
+    uv = np.full((6, 2), np.nan)
+    assert C.pnp(pts, uv, rig.K[0]) is None
+
+
+def test_camera_params_gauge_view_stays_fixed():
+    rig = _ring(3)
+    cams = C.CameraParams(rig, fixed=[0], dtype=torch.float64)
+    with torch.no_grad():
+        cams.rotvec += 0.1
+        cams.dt += 0.2
+    K, R, t = cams()
+    assert torch.allclose(R[0], torch.as_tensor(rig.R[0]))
+    assert torch.allclose(t[0], torch.as_tensor(rig.t[0]))
+    assert not torch.allclose(R[1], torch.as_tensor(rig.R[1]))
+
+
+# --- metrics ---------------------------------------------------------------------------------
+
+def _random_similarity(seed):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    import roma
+    R = roma.unitquat_to_rotmat(torch.as_tensor(q)).numpy()
+    return E.Similarity(1.3, R, rng.normal(size=3))
+
+
+def test_umeyama_recovers_similarity():
+    sim = _random_similarity(0)
+    src = np.random.default_rng(2).normal(size=(20, 3))
+    est = E.umeyama(src, sim.apply(src))
+    assert est.s == pytest.approx(1.3)
+    assert np.allclose(est.R, sim.R, atol=1e-8)
+    assert np.allclose(est.apply(src), sim.apply(src), atol=1e-8)
+
+
+def test_camera_errors_zero_after_gauge_change_and_detect_a_rotation():
+    gt = _ring(6)
+    sim = _random_similarity(3)
+    inv_R = sim.R.T
+    # express gt in another frame: x_fit = R^T (x_gt - t) / s
+    inv = E.Similarity(1 / sim.s, inv_R, -inv_R @ sim.t / sim.s)
+    fit = E.align_rig(gt, inv)
+    err = E.camera_errors(fit, gt)
+    assert err["rotation_deg_max"] < 1e-6 and err["centre_m_max"] < 1e-6
+    # perturb one camera by 2 degrees
+    import roma
+    d = roma.rotvec_to_rotmat(torch.tensor([0.0, np.radians(2.0), 0.0], dtype=torch.float64)).numpy()
+    fit.R[2] = d @ fit.R[2]
+    err = E.camera_errors(fit, gt)
+    assert 0.2 < err["rotation_deg_max"] < 2.5
+
+
+@pytest.mark.parametrize("views,spread", [(1, 0.0), (2, 150.0), (3, 0.001)])
+def test_gauge_alignment_degenerate_rigs_stay_finite(views, spread):
+    gt = _ring(views, spread, dist=2.0)
+    err = E.camera_errors(gt, gt)
+    assert err["rotation_deg_max"] < 1e-5 and err["centre_m_max"] < 1e-5
+
+
+def test_mpjpe_pa_and_jitter():
+    rng = np.random.default_rng(0)
+    gt = rng.normal(size=(10, 22, 3))
+    sim = _random_similarity(1)
+    assert E.pa_mpjpe_mm(sim.apply(gt), gt) < 1e-6
+    shifted = gt + np.array([0.01, 0, 0])
+    assert E.mpjpe_mm(shifted, gt, root=None) == pytest.approx(10.0)
+    assert E.mpjpe_mm(shifted, gt, root=0) < 1e-9
+    assert E.acceleration_error_mm(shifted, gt) < 1e-9
+    jitter = gt.copy()
+    jitter[5] += 0.01
+    assert E.acceleration_error_mm(jitter, gt) > 1.0
