@@ -1,0 +1,329 @@
+"""The SignSplat avatar: Gaussians anchored on the (upsampled) SMPL-X mesh (paper 3.2-3.5).
+
+Each point p is a barycentric combination of three mesh vertices plus an offset ``l`` along
+the normal of the face it lies on (only points added by densification learn their
+combination ``k = softmax(logits)`` and ``l``; mesh points keep theirs fixed). Original
+vertices are displaced along their normals, ``v' = v + d * n_v`` (eq. 3), with ``d`` predicted
+by a light 1D-convolutional network and bounded per part (body > head > hands).
+
+Posing uses the body model's own output: canonical vertices ``v_shaped`` (betas and
+expression applied) and posed vertices ``vertices``; the displacement is carried to the posed
+space by each vertex's blended LBS matrix ``M_v = sum_j w_vj R_j`` (exact for LBS). Gaussian
+rotations are the canonical ones turned by the orthonormalised blended matrix of their point.
+
+Gaussian attributes are canonical learnable tensors; when ``pose_dependent`` is on, a shared
+1D-conv network Omega over the point sequence (ordered along a Morton curve so that sequence
+neighbours are spatial neighbours) takes the canonical point and its translation to the posed
+point (in the body's root frame) and four zero-initialised heads add pose-dependent residuals to
+scale, rotation, opacity and colour. Scales pass through a sigmoid bounded per part.
+Quaternions are stored ``(w, x, y, z)`` as in gsplat and the 3DGS PLY format.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import roma
+import torch
+from torch import nn
+
+from signsplat.avatar.config import ModelConfig
+from signsplat.avatar.upsample import PointAnchors
+
+SH_C0 = 0.28209479177387814  # Y_0^0; gsplat colour = SH_C0 * f_dc + 0.5 (+ higher bands)
+
+# part label (joints.PART_*: body, head, left hand, right hand) -> index into (body, head, hands)
+_PART_TO_GROUP = torch.tensor([0, 1, 2, 2])
+
+# per-point tensors (resized together by densification / pruning / checkpoint loading)
+POINT_PARAMS = ("scale_raw", "quat", "opacity_raw", "sh_dc", "sh_rest", "bary_logits",
+                "normal_offset")
+POINT_BUFFERS = ("anchors", "bary_fixed", "face", "is_original", "learnable", "part")
+
+
+def num_sh_bases(degree: int) -> int:
+    return (degree + 1) ** 2
+
+
+def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat([q[..., 1:], q[..., :1]], -1)
+
+
+def xyzw_to_wxyz(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat([q[..., 3:], q[..., :3]], -1)
+
+
+def face_normals(vertices: torch.Tensor, faces: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    """Unit normals (..., F, 3) of the faces (F, 3) of (..., V, 3) vertices (zero if degenerate)."""
+    tri = vertices[..., faces, :]
+    n = torch.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(eps)
+
+
+def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals (B, V, 3) of (B, V, 3) vertices."""
+    tri = vertices[:, faces]  # (B, F, 3, 3)
+    fn = torch.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0], dim=-1)
+    vn = torch.zeros_like(vertices)
+    for k in range(3):
+        vn = vn.index_add(1, faces[:, k], fn)
+    return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def morton_order(points: torch.Tensor, bits: int = 10) -> torch.Tensor:
+    """Permutation (P,) sorting (P, 3) points along a Z-order curve (spatial locality)."""
+    lo, hi = points.min(0).values, points.max(0).values
+    q = ((points - lo) / (hi - lo).clamp_min(1e-9) * (2**bits - 1)).long()
+    code = torch.zeros(len(points), dtype=torch.long)
+    for b in range(bits):
+        for axis in range(3):
+            code |= ((q[:, axis] >> b) & 1) << (3 * b + axis)
+    return torch.argsort(code, stable=True)
+
+
+class ConvNet1d(nn.Module):
+    """Light 1D-conv network over a point sequence: (B, C_in, P) -> list of (B, C_k, P) heads."""
+
+    def __init__(self, c_in: int, hidden: int, heads: tuple[int, ...], kernel: int, layers: int):
+        super().__init__()
+        mods: list[nn.Module] = []
+        c = c_in
+        for _ in range(layers):
+            mods += [nn.Conv1d(c, hidden, kernel, padding=kernel // 2), nn.SiLU()]
+            c = hidden
+        self.trunk = nn.Sequential(*mods)
+        self.heads = nn.ModuleList(nn.Conv1d(hidden, h, 1) for h in heads)
+        for head in self.heads:  # residual heads start at zero: the canonical model
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        f = self.trunk(x)
+        return [h(f) for h in self.heads]
+
+
+@dataclass
+class PosedGaussians:
+    """Gaussians of B frames over P points (float32, metres).
+
+    means (B,P,3), quats (B,P,4) wxyz unit, scales (B,P,3) > 0, opacities (B,P) in (0,1),
+    colors (B,P,K,3) SH coefficients with K = (sh_degree+1)^2, canonical (B,P,3) canonical
+    positions, displacement (V,3) or None (eq. 3 d, before the normal product),
+    normal_offset (P,) the l of each point (0 where fixed).
+    """
+
+    means: torch.Tensor
+    quats: torch.Tensor
+    scales: torch.Tensor
+    opacities: torch.Tensor
+    colors: torch.Tensor
+    canonical: torch.Tensor
+    displacement: torch.Tensor | None
+    normal_offset: torch.Tensor
+    sh_degree: int
+
+
+def _logit(p: torch.Tensor) -> torch.Tensor:
+    p = p.clamp(1e-4, 1 - 1e-4)
+    return torch.log(p) - torch.log1p(-p)
+
+
+class AvatarModel(nn.Module):
+    """Mesh-anchored Gaussian avatar. Shapes: V vertices, F faces, J joints, P points.
+
+    Args:
+        points: anchored points from :func:`signsplat.avatar.upsample.upsample_mesh`.
+        faces: (F, 3) int64 mesh faces; lbs_weights: (V, J) float skinning weights;
+        template: (V, 3) canonical vertices (for initial scales and input normalisation);
+        cfg: :class:`ModelConfig`.
+    """
+
+    def __init__(self, points: PointAnchors, faces: torch.Tensor, lbs_weights: torch.Tensor,
+                 template: torch.Tensor, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        n = len(points)
+        n_v = int(lbs_weights.shape[0])
+        self.num_vertices = n_v
+        self.register_buffer("faces", faces.long().clone())
+        self.register_buffer("lbs_weights", lbs_weights.float().clone())
+        self.register_buffer("template", template.float().clone())
+        center = template.mean(0)
+        self.register_buffer("center", center.float())
+        self.register_buffer("extent", (template - center).abs().max().float().reshape(1))
+        self.register_buffer("scale_bounds", torch.tensor(
+            [cfg.scale_max.body, cfg.scale_max.head, cfg.scale_max.hands], dtype=torch.float32))
+        self.register_buffer("disp_bounds", torch.tensor(
+            [cfg.displacement_limit.body, cfg.displacement_limit.head,
+             cfg.displacement_limit.hands], dtype=torch.float32))
+        # per-point buffers
+        self.register_buffer("anchors", points.anchors.clone())
+        self.register_buffer("bary_fixed", points.bary.clone())
+        self.register_buffer("face", points.face.clone())
+        self.register_buffer("is_original", points.is_original.clone())
+        self.register_buffer("learnable", torch.zeros(n, dtype=torch.bool))
+        self.register_buffer("part", points.part.clone())
+
+        # canonical Gaussian parameters
+        pos = points.positions(self.template)
+        init_scale = self._spacing(pos)
+        smax = self.scale_max_per_point()
+        frac = ((init_scale - cfg.scale_min) / (smax - cfg.scale_min)).clamp(0.02, 0.9)
+        k = num_sh_bases(cfg.sh_degree)
+        color = torch.tensor(cfg.init_color, dtype=torch.float32)
+        self.scale_raw = nn.Parameter(_logit(frac)[:, None].repeat(1, 3))
+        self.quat = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1))
+        self.opacity_raw = nn.Parameter(_logit(torch.full((n, 1), cfg.init_opacity)))
+        self.sh_dc = nn.Parameter(((color - 0.5) / SH_C0).repeat(n, 1, 1))
+        self.sh_rest = nn.Parameter(torch.zeros(n, k - 1, 3))
+        self.bary_logits = nn.Parameter(torch.zeros(n, 3))
+        self.normal_offset = nn.Parameter(torch.zeros(n, 1))
+
+        self.omega = (ConvNet1d(6, cfg.hidden, (3, 4, 1, 3), cfg.kernel, cfg.layers)
+                      if cfg.pose_dependent else None)
+        self.disp_net = (ConvNet1d(3, cfg.hidden, (3,), cfg.kernel, cfg.layers)
+                         if cfg.displacement else None)
+        self.register_buffer("vertex_order", morton_order(self.template))
+        self.register_buffer("point_order", morton_order(pos))
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def num_points(self) -> int:
+        return int(self.anchors.shape[0])
+
+    def _spacing(self, pos: torch.Tensor, k: int = 4) -> torch.Tensor:
+        """Mean distance (P,) to the k nearest other points (initial Gaussian size)."""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(pos.detach().cpu().numpy())
+        d, _ = tree.query(pos.detach().cpu().numpy(), k=k + 1)
+        return torch.as_tensor(d[:, 1:].mean(1), dtype=torch.float32) * 0.5
+
+    def part_group(self) -> torch.Tensor:
+        """(P,) 0 body, 1 head, 2 hands."""
+        return _PART_TO_GROUP.to(self.part.device)[self.part]
+
+    def scale_max_per_point(self) -> torch.Tensor:
+        return self.scale_bounds[self.part_group()]
+
+    def barycentric(self) -> torch.Tensor:
+        """(P, 3) current barycentric weights (learnable only for densified points)."""
+        soft = torch.softmax(self.bary_logits, -1)
+        return torch.where(self.learnable[:, None], soft, self.bary_fixed)
+
+    def offsets(self) -> torch.Tensor:
+        """(P,) normal offsets l (zero where not learnable)."""
+        return torch.where(self.learnable, self.normal_offset[:, 0],
+                           torch.zeros_like(self.normal_offset[:, 0]))
+
+    def canonical_points(self) -> torch.Tensor:
+        """(P, 3) rest-pose template positions of the points (no displacement, no offset)."""
+        return (self.template[self.anchors] * self.barycentric().detach()[..., None]).sum(1)
+
+    def refresh_order(self) -> None:
+        """Recompute the Morton order of the points (after densification or pruning)."""
+        self.point_order = morton_order(self.canonical_points().cpu()).to(self.anchors.device)
+
+    def displacement(self) -> torch.Tensor | None:
+        """(V, 3) eq. 3 displacement vectors d, |d| bounded per part; None when switched off."""
+        if self.disp_net is None:
+            return None
+        order = self.vertex_order
+        x = ((self.template - self.center) / self.extent)[order].T[None]
+        raw = self.disp_net(x)[0][0].T  # (V, 3) in sequence order
+        raw = torch.empty_like(raw).index_copy(0, order, raw)
+        v_parts = _PART_TO_GROUP.to(self.part.device)[self.part[: self.num_vertices]]
+        bound = self.disp_bounds[v_parts][:, None]
+        norm = raw.norm(dim=-1, keepdim=True)
+        return raw * (bound * torch.tanh(norm) / norm.clamp_min(1e-9))
+
+    # ------------------------------------------------------------------ forward
+    def forward(self, v_shaped: torch.Tensor, vertices: torch.Tensor, transforms: torch.Tensor,
+                transl: torch.Tensor | None, sh_degree: int) -> PosedGaussians:
+        """Pose the Gaussians for B frames.
+
+        v_shaped: (B, V, 3) canonical vertices; vertices: (B, V, 3) posed vertices;
+        transforms: (B, J, 4, 4) LBS joint transforms (index 0 = root); transl: (B, 3) or None;
+        sh_degree: SH degree in use (coefficients above it are dropped).
+        """
+        b = v_shaped.shape[0]
+        rot = transforms[..., :3, :3]
+        m_v = torch.einsum("vj,bjxy->bvxy", self.lbs_weights, rot)  # (B, V, 3, 3)
+        disp = self.displacement()
+        if disp is not None:
+            off = disp[None] * vertex_normals(v_shaped, self.faces)
+            v_c = v_shaped + off
+            v_p = vertices + torch.einsum("bvxy,bvy->bvx", m_v, off)
+        else:
+            v_c, v_p = v_shaped, vertices
+        bary = self.barycentric()
+        x_c = (v_c[:, self.anchors] * bary[None, ..., None]).sum(2)
+        x_p = (v_p[:, self.anchors] * bary[None, ..., None]).sum(2)
+        l_off = self.offsets()
+        on_face = self.learnable & (self.face >= 0)
+        if bool(on_face.any()):
+            idx = torch.nonzero(on_face)[:, 0]
+            fidx = self.face[idx]
+            n_c = face_normals(v_c, self.faces[fidx])
+            n_p = face_normals(v_p, self.faces[fidx])
+            x_c = x_c.index_add(1, idx, n_c * l_off[idx, None])
+            x_p = x_p.index_add(1, idx, n_p * l_off[idx, None])
+        m_p = (m_v[:, self.anchors] * bary[None, ..., None, None]).sum(2)  # (B, P, 3, 3)
+        eye = torch.eye(3, dtype=m_p.dtype, device=m_p.device)
+        r_p = roma.special_gramschmidt(m_p + 1e-6 * eye)  # rotation of each point's frame
+
+        scale_raw = self.scale_raw.expand(b, -1, -1)
+        quat = self.quat.expand(b, -1, -1)
+        opacity_raw = self.opacity_raw[:, 0].expand(b, -1)
+        k = num_sh_bases(sh_degree)
+        sh = torch.cat([self.sh_dc, self.sh_rest[:, : k - 1]], 1).expand(b, -1, -1, -1)
+        if self.omega is not None:
+            # translation canonical -> posed, expressed in the root joint's frame
+            root = transforms[:, 0]
+            tr = transl if transl is not None else torch.zeros(b, 3, dtype=x_p.dtype,
+                                                               device=x_p.device)
+            x_root = torch.einsum("byx,bpy->bpx", root[:, :3, :3],
+                                  x_p - tr[:, None] - root[:, None, :3, 3])
+            feat = torch.cat([(x_c - self.center) / self.extent, (x_root - x_c) / self.extent], -1)
+            order = self.point_order
+            d_s, d_q, d_o, d_c = (
+                torch.empty(b, h.shape[1], h.shape[2], dtype=h.dtype, device=h.device)
+                .index_copy(2, order, h).transpose(1, 2)
+                for h in self.omega(feat[:, order].transpose(1, 2))
+            )
+            scale_raw = scale_raw + d_s
+            quat = quat + d_q
+            opacity_raw = opacity_raw + d_o[..., 0]
+            sh = torch.cat([sh[:, :, :1] + d_c[:, :, None], sh[:, :, 1:]], 2)
+        smin = self.cfg.scale_min
+        scales = smin + (self.scale_max_per_point()[None, :, None] - smin) * torch.sigmoid(scale_raw)
+        q_c = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        q_lbs = roma.rotmat_to_unitquat(r_p)  # xyzw
+        quats = xyzw_to_wxyz(roma.quat_product(q_lbs, wxyz_to_xyzw(q_c)))
+        return PosedGaussians(
+            means=x_p, quats=quats, scales=scales, opacities=torch.sigmoid(opacity_raw),
+            colors=sh, canonical=x_c, displacement=disp, normal_offset=l_off,
+            sh_degree=sh_degree,
+        )
+
+    # ------------------------------------------------------------------ resizing
+    def point_tensors(self) -> dict[str, torch.Tensor]:
+        """Every per-point parameter and buffer by name (first dimension P)."""
+        return {name: getattr(self, name) for name in POINT_PARAMS + POINT_BUFFERS}
+
+    def resize_like(self, state: dict[str, torch.Tensor]) -> None:
+        """Give per-point tensors the sizes in ``state`` (before ``load_state_dict``)."""
+        for name in POINT_PARAMS:
+            setattr(self, name, nn.Parameter(torch.empty_like(state[name])))
+        for name in POINT_BUFFERS + ("point_order",):
+            setattr(self, name, torch.empty_like(state[name]))
+
+
+def sh_degree_at(step: int, iterations: int, max_degree: int, rise_at: float) -> int:
+    """SH degree schedule: 0 for most of training, ``max_degree`` after ``rise_at`` of it."""
+    if max_degree == 0 or iterations <= 0:
+        return 0
+    if step < math.floor(rise_at * iterations):
+        return 0
+    return max_degree
