@@ -116,16 +116,16 @@ def int_list(default) -> Option:
 class Effect:
     """Base class. Subclasses set ``name``, ``hook`` (one of :data:`HOOKS`), ``OPTIONS``.
 
-    ``self.options`` holds the validated options (defaults filled in); ``self.seed`` is the
-    scene seed.
+    Built as ``cls(scene_seed, **options)``; ``self.options`` holds the validated options
+    (defaults filled in), ``self.seed`` the scene seed.
     """
 
     name: ClassVar[str] = ""
     hook: ClassVar[str] = ""
     OPTIONS: ClassVar[dict[str, Option]] = {}
 
-    def __init__(self, seed: int = 0, **options: Any) -> None:
-        self.seed = int(seed)
+    def __init__(self, scene_seed: int = 0, /, **options: Any) -> None:
+        self.seed = int(scene_seed)
         self.options = validate_options(type(self), options)
 
     def rng(self, view: int, frame: int) -> np.random.Generator:
@@ -235,8 +235,8 @@ class Lighting(Effect):
         "color": vector(3, (1.0, 1.0, 1.0), 0.0, 10.0),
     }
 
-    def __init__(self, seed: int = 0, **options: Any) -> None:
-        super().__init__(seed, **options)
+    def __init__(self, scene_seed: int = 0, /, **options: Any) -> None:
+        super().__init__(scene_seed, **options)
         d = np.asarray(self.options["direction"], np.float64)
         if np.linalg.norm(d) < 1e-9:
             raise EffectError("effect 'lighting': option 'direction' must be a non-zero vector")
@@ -272,8 +272,8 @@ class Background(Effect):
         "scale": number(1e-3, None, 24.0),
     }
 
-    def __init__(self, seed: int = 0, **options: Any) -> None:
-        super().__init__(seed, **options)
+    def __init__(self, scene_seed: int = 0, /, **options: Any) -> None:
+        super().__init__(scene_seed, **options)
         self._cache: dict[tuple[int, int, int], np.ndarray] = {}
 
     def background(self, view: int, frame: int, height: int, width: int) -> np.ndarray:
