@@ -30,7 +30,9 @@ __all__ = ["look_at", "camera_rig", "scene_target", "build_motion", "compose_cli
            "params_at", "SceneError", "ROTATION_BLOCKS"]
 
 ROTATION_BLOCKS = tuple(name for name, _ in POSE_BLOCKS)  # axis-angle blocks
-_BLOCK_SIZES = dict(POSE_BLOCKS)
+# blocks a gloss clip contributes; betas, global_orient and transl come from the scene
+_CLIP_BLOCKS = ("body_pose", "jaw_pose", "leye_pose", "reye_pose", "left_hand_pose",
+                "right_hand_pose", "expression")
 
 
 class SceneError(SignSplatError, ValueError):
@@ -176,9 +178,20 @@ def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: floa
     clips = []
     for g in names:
         clip = library[g]
+        if getattr(clip, "hand_mean", "flat") != "flat":
+            raise SceneError(f"motion.glosses: gloss {g!r} stores hand poses relative to the "
+                             f"MANO mean ({clip.hand_mean!r}); the simulator needs 'flat'")
         src_fps = float(getattr(clip, "fps", fps))
         clips.append({k: _resample(np.asarray(v, np.float64), src_fps, fps)
-                      for k, v in clip.poses.items()})
+                      for k, v in clip.poses.items() if k in _CLIP_BLOCKS})
+    # every clip gets the same blocks (missing ones are zero: rest pose / neutral face)
+    keys = sorted({k for c in clips for k in c})
+    for c in clips:
+        n = len(next(iter(c.values())))
+        for k in keys:
+            if k not in c:
+                width = next(o[k].shape[1] for o in clips if k in o)
+                c[k] = np.zeros((n, width))
     return _stitch(clips, hold_frames, transition_frames)
 
 
@@ -271,3 +284,17 @@ def scene_name(scene: Mapping[str, Any], out_dir: str | os.PathLike) -> str:
         return str(scene["name"])
     out = Path(out_dir).resolve()
     return out.parent.name if out.name == "sim" else out.name
+
+
+def check_scene(scene: Mapping[str, Any], source: str = "<scene>") -> None:
+    """Checks beyond the schema that need no data files: effect names and options.
+
+    Raises :class:`SceneError` naming ``source`` and the problem (cheap: builds nothing but
+    the listed effects' option dicts).
+    """
+    from signsplat.synth.effects import EffectError, build_effects
+
+    try:
+        build_effects(scene.get("effects", []), int(scene.get("seed", 0)))
+    except EffectError as exc:
+        raise SceneError(f"{source}: {exc}") from None
