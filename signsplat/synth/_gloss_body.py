@@ -1,0 +1,232 @@
+"""Geometry for the synthetic gloss library: a standard skeleton, body locations, hand points
+and an analytic two-bone arm IK.
+
+Everything here is numpy (float64) and deterministic. Positions are metres in the body frame
+of the SMPL-X rest pose with the pelvis joint at the origin: y up, the signer faces +z, the
+signer's left is +x (see docs/architecture.md). The numbers are those of an average adult
+(close to the SMPL-X neutral template and the procedural proxy); the library is built against
+this skeleton so that it does not depend on a body-model file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from signsplat.body.joints import JOINT_INDEX
+
+# --- skeleton -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """Rest positions (3,) of the joints the gloss generator needs, pelvis at the origin.
+
+    ``shoulder``/``elbow``/``wrist`` are given for the LEFT side; the right side is mirrored
+    (x -> -x). ``hand`` holds left-hand rest points relative to the left wrist.
+    """
+
+    shoulder: tuple = (0.175, 0.47, -0.025)
+    elbow: tuple = (0.435, 0.47, -0.025)
+    wrist: tuple = (0.685, 0.47, -0.025)
+    face: dict = field(default_factory=lambda: {
+        "forehead": (0.0, 0.80, 0.095), "temple": (0.06, 0.77, 0.05),
+        "eye": (0.032, 0.745, 0.085), "nose": (0.0, 0.71, 0.115),
+        "mouth": (0.0, 0.665, 0.10), "chin": (0.0, 0.625, 0.085),
+        "cheek": (0.055, 0.69, 0.075), "ear": (0.08, 0.72, -0.005),
+        "neck": (0.0, 0.555, 0.05), "chest": (0.0, 0.37, 0.125),
+        "chest_side": (0.10, 0.38, 0.115), "shoulder_front": (0.16, 0.46, 0.06),
+        "stomach": (0.0, 0.17, 0.13), "neutral": (0.0, 0.30, 0.34),
+        "neutral_side": (0.13, 0.31, 0.32), "high": (0.0, 0.60, 0.36),
+        "low": (0.0, 0.10, 0.30), "rest": (0.20, 0.02, 0.10),
+    })
+
+    def side_point(self, name: str, side: str) -> np.ndarray:
+        """A body location for ``side`` ('left'/'right'); lateral points are mirrored."""
+        p = np.array(self.face[name] if name in self.face else getattr(self, name), float)
+        return p * np.array([-1.0, 1.0, 1.0]) if side == "right" else p
+
+    @property
+    def upper_arm(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.elbow, self.shoulder)))
+
+    @property
+    def forearm(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.wrist, self.elbow)))
+
+
+STANDARD = Skeleton()
+
+# Left-hand rest joint positions relative to the left wrist (hand frame = rest frame), SMPL-X
+# hand-joint order, plus fingertips. Palm faces -y, fingers +x, thumb towards +z.
+HAND_JOINTS_REST = np.array([
+    [0.088, 0.004, 0.026], [0.121, 0.002, 0.028], [0.143, 0.0, 0.029],      # index
+    [0.094, 0.005, 0.003], [0.131, 0.003, 0.003], [0.156, 0.0, 0.003],      # middle
+    [0.076, -0.002, -0.036], [0.100, -0.003, -0.039], [0.117, -0.004, -0.041],  # pinky
+    [0.087, 0.002, -0.018], [0.120, 0.0, -0.019], [0.143, -0.002, -0.020],  # ring
+    [0.022, -0.012, 0.024], [0.047, -0.017, 0.048], [0.067, -0.020, 0.068],  # thumb
+])
+TIP_OFFSETS = np.array([  # joint 3 -> fingertip, per finger (index, middle, pinky, ring, thumb)
+    [0.022, -0.002, 0.001], [0.024, -0.002, 0.0], [0.018, -0.002, -0.002],
+    [0.022, -0.002, -0.001], [0.020, -0.003, 0.020],
+])
+FINGER_ORDER = ("index", "middle", "pinky", "ring", "thumb")
+#: Named points on a (left, rest) hand that are not joints, relative to the wrist.
+HAND_SURFACE = {
+    "palm": np.array([0.055, -0.022, 0.0]),
+    "back": np.array([0.055, 0.022, 0.0]),
+    "heel": np.array([0.015, -0.02, 0.0]),
+    "edge": np.array([0.06, -0.005, -0.045]),  # little-finger side of the palm
+    "wrist": np.zeros(3),
+}
+_MIRROR = np.array([-1.0, 1.0, 1.0])
+
+
+def hand_points(hand_pose: np.ndarray, side: str) -> dict[str, np.ndarray]:
+    """Forward kinematics of one hand in its own frame (wrist at origin, rest axes).
+
+    Args:
+        hand_pose: (45,) flat axis-angle of the 15 hand joints of ``side``.
+        side: 'left' or 'right'.
+    Returns:
+        name -> (3,) position: ``{finger}{k}`` joints, ``{finger}_tip`` and the surface points
+        of :data:`HAND_SURFACE` (palm points do not move with the fingers).
+    """
+    m = _MIRROR if side == "right" else np.ones(3)
+    rots = Rotation.from_rotvec(np.asarray(hand_pose, float).reshape(15, 3)).as_matrix()
+    out = {k: v * m for k, v in HAND_SURFACE.items()}
+    for f, finger in enumerate(FINGER_ORDER):
+        pos = HAND_JOINTS_REST[3 * f] * m
+        glob = rots[3 * f]
+        out[f"{finger}1"] = pos
+        for k in (1, 2):
+            bone = (HAND_JOINTS_REST[3 * f + k] - HAND_JOINTS_REST[3 * f + k - 1]) * m
+            pos = pos + glob @ bone
+            glob = glob @ rots[3 * f + k]
+            out[f"{finger}{k + 1}"] = pos
+        out[f"{finger}_tip"] = pos + glob @ (TIP_OFFSETS[f] * m)
+    return out
+
+
+# --- orientations ---------------------------------------------------------------------------
+
+_DIRECTIONS = {
+    "up": (0, 1, 0), "down": (0, -1, 0), "forward": (0, 0, 1), "back": (0, 0, -1),
+    "left": (1, 0, 0), "right": (-1, 0, 0),
+}
+
+
+def direction(spec, side: str) -> np.ndarray:
+    """Unit vector from a name or a sum of names ('up+forward'), or a 3-vector.
+
+    'in' points towards the body midline for ``side`` and 'out' away from it.
+    """
+    if isinstance(spec, str):
+        v = np.zeros(3)
+        for part in spec.split("+"):
+            if part in ("in", "out"):
+                sgn = -1.0 if side == "left" else 1.0
+                v += np.array([sgn if part == "in" else -sgn, 0.0, 0.0])
+            else:
+                v += np.array(_DIRECTIONS[part], float)
+    else:
+        v = np.asarray(spec, float)
+    n = np.linalg.norm(v)
+    if n < 1e-9:
+        raise ValueError(f"direction {spec!r} is zero")
+    return v / n
+
+
+def hand_rotation(fingers: np.ndarray, palm: np.ndarray, side: str) -> np.ndarray:
+    """World rotation (3,3) of a hand whose fingers point along ``fingers`` and whose palm
+    faces ``palm`` (made orthogonal to the fingers). Identity = rest (fingers out, palm down)."""
+    f = fingers / np.linalg.norm(fingers)
+    p = palm - f * (palm @ f)
+    if np.linalg.norm(p) < 1e-6:  # palm parallel to fingers: pick any perpendicular
+        p = np.cross(f, [0.0, 0.0, 1.0]) if abs(f[2]) < 0.9 else np.cross(f, [1.0, 0.0, 0.0])
+    p = p / np.linalg.norm(p)
+    x = f if side == "left" else -f
+    y = -p
+    return np.stack([x, y, np.cross(x, y)], axis=1)
+
+
+# --- arm IK ---------------------------------------------------------------------------------
+
+ELBOW_POLE = np.array([0.45, -1.0, -0.35])  # left arm: elbow points down, out and back
+
+
+def arm_ik(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
+           skel: Skeleton = STANDARD, max_twist: float = np.radians(110.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic two-bone IK of one arm, vectorised over frames.
+
+    The shoulder joint turns the upper arm towards the elbow, the elbow is a hinge about the
+    upper arm's local y axis (as in the SMPL-X T-pose, palm down) followed by the forearm
+    twist about the bone (up to ``max_twist`` radians), and the wrist takes the remaining swing. The elbow swivel follows a fixed pole
+    (down, out, back). Collar and spine stay at rest. Unreachable targets are pulled in.
+
+    Args:
+        wrist_target: (T, 3) wrist positions, body frame.
+        hand_rot: (T, 3, 3) world rotations of the hand (see :func:`hand_rotation`).
+        side: 'left' or 'right'.
+    Returns:
+        Local axis-angle of shoulder, elbow and wrist, each (T, 3).
+    """
+    m = _MIRROR if side == "right" else np.ones(3)
+    S = np.asarray(skel.shoulder) * m
+    L1, L2 = skel.upper_arm, skel.forearm
+    d_vec = wrist_target - S
+    d = np.linalg.norm(d_vec, axis=-1)
+    u = d_vec / np.maximum(d, 1e-9)[:, None]
+    d = np.clip(d, abs(L1 - L2) + 0.02, L1 + L2 - 1e-4)
+    pole = ELBOW_POLE * m
+    v = pole[None] - u * (u @ pole)[:, None]
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    cos_a = np.clip((L1 ** 2 + d ** 2 - L2 ** 2) / (2 * L1 * d), -1.0, 1.0)
+    sin_a = np.sqrt(1.0 - cos_a ** 2)
+    a_dir = cos_a[:, None] * u + sin_a[:, None] * v  # upper arm direction
+    elbow = S + L1 * a_dir
+    f_dir = (S + d[:, None] * u) - elbow
+    f_dir /= np.linalg.norm(f_dir, axis=-1, keepdims=True)
+    k = np.cross(a_dir, f_dir)
+    sin_phi = np.linalg.norm(k, axis=-1)
+    phi = np.arctan2(sin_phi, np.sum(a_dir * f_dir, axis=-1))
+    k = k / np.maximum(sin_phi, 1e-9)[:, None]
+    # shoulder frame: x-axis -> bone direction (rest bone is +x left, -x right), y -> hinge
+    if side == "left":
+        x_axis, y_axis, hinge_sign = a_dir, -k, -1.0
+    else:
+        x_axis, y_axis, hinge_sign = -a_dir, k, 1.0
+    R_s = np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=-1)
+    hinge = Rotation.from_rotvec(np.array([0.0, 1.0, 0.0]) * (hinge_sign * phi)[:, None])
+    R_h = R_s @ hinge.as_matrix()
+    # forearm twist (pronation/supination): the twist part of the remaining rotation about
+    # the forearm axis (local x) goes to the elbow, the swing part to the wrist
+    rem = Rotation.from_matrix(np.swapaxes(R_h, -1, -2) @ hand_rot).as_quat()  # xyzw
+    tau = 2.0 * np.arctan2(rem[:, 0], rem[:, 3])
+    tau = (tau + np.pi) % (2.0 * np.pi) - np.pi
+    tau = np.clip(tau, -max_twist, max_twist)
+    R_e_local = hinge.as_matrix() @ Rotation.from_rotvec(
+        np.array([1.0, 0.0, 0.0]) * tau[:, None]).as_matrix()
+    R_e = R_s @ R_e_local
+    R_w_local = np.swapaxes(R_e, -1, -2) @ hand_rot
+    return (Rotation.from_matrix(R_s).as_rotvec(), Rotation.from_matrix(R_e_local).as_rotvec(),
+            Rotation.from_matrix(R_w_local).as_rotvec())
+
+
+def arm_fk(shoulder_aa, elbow_aa, wrist_aa, side: str, skel: Skeleton = STANDARD):
+    """Forward kinematics of :func:`arm_ik`'s chain: -> (wrist position (T,3), hand rot (T,3,3))."""
+    m = _MIRROR if side == "right" else np.ones(3)
+    S = np.asarray(skel.shoulder) * m
+    Rs = Rotation.from_rotvec(shoulder_aa).as_matrix()
+    Re = Rs @ Rotation.from_rotvec(elbow_aa).as_matrix()
+    Rw = Re @ Rotation.from_rotvec(wrist_aa).as_matrix()
+    E = S + Rs @ ((np.asarray(skel.elbow) - skel.shoulder) * m)
+    W = E + Re @ ((np.asarray(skel.wrist) - skel.elbow) * m)
+    return W, Rw
+
+
+BODY_SLOT = {name: (JOINT_INDEX[name] - 1) * 3 for name in (
+    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+    "right_wrist", "head", "neck", "spine3")}

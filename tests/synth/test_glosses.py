@@ -1,0 +1,125 @@
+"""Synthetic gloss library: size, layout, hand limits, determinism, IK accuracy, I/O."""
+
+import numpy as np
+import pytest
+
+from signsplat.body.hand_limits import within_limits
+from signsplat.io.tables import TableError
+from signsplat.synth import _gloss_body as gb
+from signsplat.synth import glosses as G
+
+
+@pytest.fixture(scope="module")
+def library():
+    return G.build_gloss_library(seed=0, fps=25.0)
+
+
+def test_library_size_and_kinds(library):
+    signs = library[library.kind == "sign"]
+    letters = library[library.kind == "letter"]
+    assert len(signs) >= 30
+    assert sorted(letters.gloss) == [chr(c) for c in range(ord("A"), ord("Z") + 1)]
+    assert library.gloss.is_unique
+    for words in signs.words:
+        assert len(words) >= 1 and all(w == w.lower() for w in words)
+    # every English word names one gloss only (unambiguous lookup)
+    all_words = [w for ws in signs.words for w in ws]
+    assert len(all_words) == len(set(all_words))
+    for g in ("HELLO", "THANK-YOU", "NOT", "WHERE", "ME", "SCHOOL"):
+        assert g in set(signs.gloss)
+
+
+def test_tracks_have_table_layout_and_durations(library):
+    clips = G.clips_from_table(library)
+    for clip in clips.values():
+        n = clip.num_frames
+        for block, k in G.BLOCK_SIZES.items():
+            assert clip.poses[block].shape == (n, k), (clip.gloss, block)
+            assert np.isfinite(clip.poses[block]).all()
+        dur = n / clip.fps
+        if clip.kind == "sign":
+            assert 0.55 <= dur <= 1.6, (clip.gloss, dur)
+        else:
+            assert 0.3 <= dur <= 0.7, (clip.gloss, dur)
+        assert clip.hand_mean == "flat"
+
+
+def test_every_hand_pose_within_limits(library):
+    clips = G.clips_from_table(library)
+    left = np.concatenate([c.poses["left_hand_pose"] for c in clips.values()])
+    right = np.concatenate([c.poses["right_hand_pose"] for c in clips.values()])
+    assert within_limits(left, "left").all()
+    assert within_limits(right, "right").all()
+
+
+def test_signs_move_and_use_non_manual_features(library):
+    clips = G.clips_from_table(library)
+    for clip in clips.values():
+        body = clip.poses["body_pose"]
+        assert np.abs(body[-1] - body[0]).max() > 1e-3 or np.ptp(body, axis=0).max() > 1e-2
+    # questions furrow the brows, YES nods the head
+    brow = G.EXPRESSION_INDEX["brow_furrow"]
+    assert clips["WHAT"].poses["expression"][:, brow].max() > 0.5
+    assert clips["HELLO"].poses["expression"][:, brow].max() < 0.1
+    head = gb.BODY_SLOT["head"]
+    assert np.ptp(clips["YES"].poses["body_pose"][:, head]) > 0.1
+
+
+def test_deterministic_for_a_seed_and_varies_with_seed():
+    a = G.build_gloss_library(seed=3, fps=20.0)
+    b = G.build_gloss_library(seed=3, fps=20.0)
+    c = G.build_gloss_library(seed=4, fps=20.0)
+    for col in ("body_pose", "right_hand_pose", "expression"):
+        for x, y in zip(a[col], b[col]):
+            np.testing.assert_array_equal(x, y)
+    assert any(not np.array_equal(x, y) for x, y in zip(a.body_pose, c.body_pose))
+
+
+def test_ik_reaches_contact_points():
+    """Analytic arm IK: forward kinematics of the solved angles hits reachable targets."""
+    rng = np.random.default_rng(0)
+    for side in ("left", "right"):
+        sx = -1.0 if side == "right" else 1.0
+        shoulder = np.array(gb.STANDARD.shoulder) * [sx, 1, 1]
+        tgt = shoulder + rng.normal(size=(100, 3)) * 0.12 + [-sx * 0.15, -0.15, 0.25]
+        reach = np.linalg.norm(tgt - shoulder, axis=1) < gb.STANDARD.upper_arm + gb.STANDARD.forearm - 0.01
+        rot = np.stack([gb.hand_rotation(rng.normal(size=3), rng.normal(size=3), side)
+                        for _ in range(100)])
+        s, e, w = gb.arm_ik(tgt, rot, side)
+        pos, hand = gb.arm_fk(s, e, w, side)
+        assert reach.sum() > 50
+        np.testing.assert_allclose(pos[reach], tgt[reach], atol=1e-9)
+        np.testing.assert_allclose(hand, rot, atol=1e-9)
+
+
+def test_fingertip_contact_lands_on_location():
+    """HELLO's index tip starts at the temple (plus small offset and jitter)."""
+    sign = next(s for s in G.all_signs() if s.gloss == "HELLO")
+    blocks = G.build_gloss(sign, seed=0, fps=25.0)
+    body = blocks["body_pose"].astype(np.float64)
+    sl = lambda j: body[:, gb.BODY_SLOT[f"right_{j}"]:gb.BODY_SLOT[f"right_{j}"] + 3]
+    wrist, rot = gb.arm_fk(sl("shoulder"), sl("elbow"), sl("wrist"), "right")
+    tip = gb.hand_points(blocks["right_hand_pose"][0].astype(np.float64), "right")["index_tip"]
+    p0 = wrist[0] + rot[0] @ tip
+    temple = gb.STANDARD.side_point("temple", "right")
+    assert np.linalg.norm(p0 - temple) < 0.05
+
+
+def test_write_and_load_round_trip(tmp_path):
+    path = G.write_gloss_library(tmp_path / "glosses.parquet", seed=0, fps=25.0)
+    clips = G.load_gloss_library(path)
+    df = G.build_gloss_library(seed=0, fps=25.0)
+    assert set(clips) == set(df.gloss)
+    row = df[df.gloss == "BOOK"].iloc[0]
+    np.testing.assert_array_equal(clips["BOOK"].poses["body_pose"].reshape(-1), row.body_pose)
+    assert clips["A"].kind == "letter" and clips["A"].words == ("a",)
+    with pytest.raises(TableError):
+        G.load_gloss_library(tmp_path / "missing.parquet")
+
+
+def test_handshape_names_and_movement_errors():
+    from signsplat.synth._gloss_shapes import handshape_angles
+    with pytest.raises(KeyError, match="unknown handshape"):
+        handshape_angles("nope")
+    with pytest.raises(ValueError, match="unknown movement"):
+        G.movement_offsets(G.Move("wobble"), "right", np.linspace(0, 1, 5))
