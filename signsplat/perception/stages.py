@@ -1,0 +1,217 @@
+"""The perception stages over whole sequences: ``segment`` and ``detect_keypoints``.
+
+Both read the ``frames`` table (image paths relative to its folder), work in batches with a
+progress bar, write their outputs atomically and return their tables. A missing or corrupt
+frame image does not stop the others: every readable frame's outputs are written, then an
+:class:`~signsplat.errors.InputError` names the bad file(s) (or, with ``skip_bad_frames``,
+a warning is printed and the bad frames are left out of the tables).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from signsplat.body.joints import NUM_KEYPOINTS
+from signsplat.errors import InputError
+from signsplat.io.tables import Table, read_table, register_table, write_table
+from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
+                                            load_segmenter)
+from signsplat.perception.images import read_rgb, write_mask
+from signsplat.perception.keypoints import detect_batch
+from signsplat.perception.segment import mask_stats, segment_batch
+
+MASKS_TABLE = register_table(Table(
+    "masks",
+    "Predicted person masks: one row per view and frame (the PNG holds the mask itself).",
+    {
+        "scene": "str sequence name",
+        "view": "int32 camera index",
+        "frame": "int32 frame index",
+        "mask": "str path of the 0/255 mask PNG, relative to the table's folder",
+        "area": "int64 foreground pixels",
+        "x0": "float32 box left edge in pixels (first foreground column; NaN when empty)",
+        "y0": "float32 box top edge in pixels (first foreground row; NaN when empty)",
+        "x1": "float32 box right edge in pixels (one past the last column; NaN when empty)",
+        "y1": "float32 box bottom edge in pixels (one past the last row; NaN when empty)",
+        "confidence": "float32 mean alpha over the mask's pixels in [0, 1] (0 when empty)",
+    },
+    metadata={"model": "path of the segmentation ONNX file"},
+))
+
+
+@dataclass
+class StageReport:
+    """What a stage did: its table, the frames it could not read and its timings (seconds)."""
+
+    table: pd.DataFrame
+    bad_frames: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    frames: int = 0
+
+
+def _batches(n: int, size: int):
+    for start in range(0, n, max(1, size)):
+        yield range(start, min(n, start + max(1, size)))
+
+
+def _read_frames(rows: pd.DataFrame, base: Path) -> tuple[list, list[str]]:
+    images, bad = [], []
+    for rel in rows["image"]:
+        try:
+            images.append(read_rgb(base / rel))
+        except InputError as exc:
+            images.append(None)
+            bad.append(str(exc))
+    return images, bad
+
+
+def _finish(report: StageReport, skip_bad: bool, stage: str) -> StageReport:
+    if report.bad_frames:
+        msg = (f"{len(report.bad_frames)} frame image(s) could not be read: "
+               + "; ".join(report.bad_frames)
+               + f" (outputs of the other {report.frames} frame(s) were written)")
+        if not skip_bad:
+            raise InputError(msg)
+        print(f"{stage}: warning: {msg}", file=sys.stderr)
+    return report
+
+
+def timings_table(report: StageReport, scene: str, stage: str) -> pd.DataFrame:
+    """The stage's timings as a ``timings`` table."""
+    return pd.DataFrame({
+        "scene": scene, "stage": stage, "step": list(report.timings),
+        "seconds": np.array(list(report.timings.values()), np.float64),
+        "count": np.int64(report.frames),
+    })
+
+
+def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
+                     spec: SegmenterSpec, threads: int = 1, skip_bad_frames: bool = False,
+                     progress: bool = True) -> StageReport:
+    """Masks for every row of a ``frames`` table.
+
+    Writes ``out_dir/masks/{view:02d}/{frame:04d}.png`` (0/255) and ``out_dir/masks.parquet``
+    (table ``masks``). Returns the report (its table has one row per readable frame).
+    """
+    t_start = time.perf_counter()
+    frames_path, out_dir = Path(frames_path), Path(out_dir)
+    frames = read_table(frames_path, "frames").sort_values(["view", "frame"], kind="stable")
+    frames = frames.reset_index(drop=True)
+    model = load_segmenter(spec, threads)
+    t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
+    rows, bad = [], []
+    bar = tqdm(total=len(frames), desc="segment", unit="frame", disable=not progress,
+               file=sys.stderr)
+    for idx in _batches(len(frames), spec.batch_size):
+        chunk = frames.iloc[list(idx)]
+        t0 = time.perf_counter()
+        images, errs = _read_frames(chunk, frames_path.parent)
+        bad += errs
+        good = [i for i, im in enumerate(images) if im is not None]
+        t1 = time.perf_counter()
+        alphas = segment_batch(model, spec, [images[i] for i in good]) if good else []
+        t2 = time.perf_counter()
+        for i, alpha in zip(good, alphas):
+            r = chunk.iloc[i]
+            st = mask_stats(alpha, spec.threshold)
+            rel = f"masks/{int(r['view']):02d}/{int(r['frame']):04d}.png"
+            write_mask(out_dir / rel, st["mask"])
+            rows.append((r["scene"], int(r["view"]), int(r["frame"]), rel, st["area"],
+                         *st["box"], st["confidence"]))
+        t3 = time.perf_counter()
+        t["read"] += t1 - t0
+        t["model"] += t2 - t1
+        t["write"] += t3 - t2
+        bar.update(len(chunk))
+    bar.close()
+    df = pd.DataFrame(rows, columns=["scene", "view", "frame", "mask", "area", "x0", "y0", "x1",
+                                     "y1", "confidence"])
+    df = df.astype({"view": "int32", "frame": "int32", "area": "int64", "x0": "float32",
+                    "y0": "float32", "x1": "float32", "y1": "float32",
+                    "confidence": "float32"})
+    write_table(df, out_dir / "masks.parquet", "masks", metadata={"model": str(spec.path)})
+    t["total"] = time.perf_counter() - t_start
+    report = StageReport(df, bad, t, len(df))
+    return _finish(report, skip_bad_frames, "segment")
+
+
+def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLike,
+                    out_path: str | os.PathLike, spec: KeypointSpec, threads: int = 1,
+                    skip_bad_frames: bool = False, progress: bool = True) -> StageReport:
+    """COCO-WholeBody keypoints for every frame that has a row in the ``masks`` table.
+
+    The person box is the mask's box; a frame with an empty mask gets score 0 and NaN x, y.
+    Writes ``out_path`` (table ``keypoints``, one row per keypoint, scores in [0, 1]).
+    """
+    t_start = time.perf_counter()
+    frames_path = Path(frames_path)
+    frames = read_table(frames_path, "frames")
+    masks = read_table(masks_path, "masks")
+    frames = frames.merge(masks[["view", "frame", "area", "x0", "y0", "x1", "y1"]],
+                          on=["view", "frame"], how="left", indicator=True)
+    frames = frames.sort_values(["view", "frame"], kind="stable").reset_index(drop=True)
+    bad = [f"{frames_path.parent / r['image']}: no row in {masks_path}"
+           for _, r in frames[frames["_merge"] != "both"].iterrows()]
+    frames = frames[frames["_merge"] == "both"].reset_index(drop=True)
+    model = load_keypointer(spec, threads)
+    k = spec.num_keypoints
+    t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
+    keys, xys, scs = [], [], []
+    bar = tqdm(total=len(frames), desc="keypoints", unit="frame", disable=not progress,
+               file=sys.stderr)
+    for idx in _batches(len(frames), spec.batch_size):
+        chunk = frames.iloc[list(idx)]
+        t0 = time.perf_counter()
+        images, errs = _read_frames(chunk, frames_path.parent)
+        bad += errs
+        good = [i for i, im in enumerate(images) if im is not None]
+        boxes = []
+        for i in good:
+            b = chunk.iloc[i][["x0", "y0", "x1", "y1"]].to_numpy(np.float64)
+            small = chunk.iloc[i]["area"] < spec.min_area
+            boxes.append(None if small or not np.all(np.isfinite(b)) or b[2] <= b[0]
+                         or b[3] <= b[1] else b)
+        t1 = time.perf_counter()
+        if good:
+            xy, sc = detect_batch(model, spec, [images[i] for i in good], boxes)
+            for j, i in enumerate(good):
+                r = chunk.iloc[i]
+                keys.append((r["scene"], int(r["view"]), int(r["frame"])))
+                xys.append(xy[j])
+                scs.append(sc[j])
+        t["model"] += time.perf_counter() - t1
+        t["read"] += t1 - t0
+        bar.update(len(chunk))
+    bar.close()
+    t0 = time.perf_counter()
+    df = keypoints_frame(keys, xys, scs, k)
+    write_table(df, out_path, "keypoints", metadata={"model": str(spec.path), "source": "onnx"})
+    t["write"] += time.perf_counter() - t0
+    t["total"] = time.perf_counter() - t_start
+    report = StageReport(df, bad, t, len(keys))
+    return _finish(report, skip_bad_frames, "detect_keypoints")
+
+
+def keypoints_frame(keys: list[tuple[str, int, int]], xys: list[np.ndarray],
+                    scores: list[np.ndarray], k: int = NUM_KEYPOINTS) -> pd.DataFrame:
+    """Long ``keypoints`` table from per-frame (K, 2) positions and (K,) scores."""
+    n = len(keys)
+    xy = np.stack(xys).reshape(n * k, 2) if n else np.zeros((0, 2), np.float32)
+    sc = np.stack(scores).reshape(n * k) if n else np.zeros(0, np.float32)
+    return pd.DataFrame({
+        "scene": np.repeat([s for s, _, _ in keys], k).astype(object),
+        "view": np.repeat([v for _, v, _ in keys], k).astype(np.int32),
+        "frame": np.repeat([f for _, _, f in keys], k).astype(np.int32),
+        "kp": np.tile(np.arange(k, dtype=np.int16), n),
+        "x": xy[:, 0].astype(np.float32),
+        "y": xy[:, 1].astype(np.float32),
+        "score": sc.astype(np.float32),
+    })
