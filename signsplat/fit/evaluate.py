@@ -156,3 +156,77 @@ def reprojection_px(uv: np.ndarray, kp: np.ndarray) -> float:
     if not m.any():
         return float("nan")
     return float(np.linalg.norm(uv[m] - kp[..., :2][m], axis=-1).mean())
+
+
+# --- the fit_eval table ---------------------------------------------------------------------
+
+from signsplat.body import joints as J  # noqa: E402
+from signsplat.io.tables import Table, register_table  # noqa: E402
+
+FIT_EVAL = register_table(Table(
+    "fit_eval",
+    "SMPL-X fit accuracy against ground truth, one row per metric, with the fit's seconds.",
+    {
+        "scene": "str sequence name",
+        "mode": "str multiview or singleview",
+        "keypoints": "str detected or ground_truth (which 2D keypoints were fitted)",
+        "metric": "str mpjpe, pa_mpjpe, reprojection, camera_rotation, camera_centre, jitter, "
+                  "scale, seconds, ...",
+        "part": "str body, upper_body, left_hand, right_hand, hands, face, all, cameras",
+        "value": "float64 the figure (NaN when not measurable)",
+        "unit": "str mm, px, deg, m, mm/frame^2, s, 1",
+        "seconds_total": "float64 wall-clock seconds of the whole fit",
+        "seconds_per_frame": "float64 seconds_total / frames",
+    },
+))
+
+#: Point sets evaluated in 3D: name -> (source, indices, root). Source 'joints' = the 55
+#: SMPL-X joints, 'kp' = the 133 whole-body keypoints. Root: index into the set's indices,
+#: 'centroid', or None.
+BODY_JOINTS = tuple(range(22))
+UPPER_BODY_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+    "pelvis", "spine1", "spine2", "spine3", "neck", "left_collar", "right_collar", "head",
+    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist"))
+PARTS_3D = {
+    "body": ("joints", BODY_JOINTS, 0),
+    "upper_body": ("joints", UPPER_BODY_JOINTS, 0),
+    "left_hand": ("kp", J.KP_LEFT_HAND, 0),
+    "right_hand": ("kp", J.KP_RIGHT_HAND, 0),
+    "face": ("kp", J.KP_FACE, "centroid"),
+}
+
+
+def _part_points(joints: np.ndarray, kp: np.ndarray, part: str) -> tuple[np.ndarray, object]:
+    src, idx, root = PARTS_3D[part]
+    pts = (joints if src == "joints" else kp)[:, list(idx)]
+    return pts, root
+
+
+def pose_errors(fit_joints: np.ndarray, fit_kp: np.ndarray, gt_joints: np.ndarray,
+                gt_kp: np.ndarray) -> list[tuple[str, str, float, str]]:
+    """MPJPE / PA-MPJPE / jitter per part. Inputs (T,55,3), (T,133,3) in the GT frame, metres.
+
+    Returns rows (metric, part, value, unit). 'hands' averages both hands.
+    """
+    rows = []
+    for part in PARTS_3D:
+        p, root = _part_points(fit_joints, fit_kp, part)
+        g, _ = _part_points(gt_joints, gt_kp, part)
+        r = np.arange(p.shape[1]) if root == "centroid" else root
+        rows.append(("mpjpe", part, mpjpe_mm(p, g, r), "mm"))
+        rows.append(("pa_mpjpe", part, pa_mpjpe_mm(p, g), "mm"))
+        rows.append(("jitter", part, acceleration_error_mm(p, g), "mm/frame^2"))
+    by = {(m, p): v for m, p, v, _ in rows}
+    for metric, unit in (("mpjpe", "mm"), ("pa_mpjpe", "mm"), ("jitter", "mm/frame^2")):
+        rows.append((metric, "hands", (by[(metric, "left_hand")] + by[(metric, "right_hand")]) / 2,
+                     unit))
+    return rows
+
+
+def reprojection_rows(uv: np.ndarray, obs: np.ndarray) -> list[tuple[str, str, float, str]]:
+    """2D reprojection error per part: uv (V,T,133,2) of the fit, obs (V,T,133,3) fitted input."""
+    rows = [("reprojection", "all", reprojection_px(uv, obs), "px")]
+    for part, idx in J.KEYPOINT_PARTS.items():
+        idx = list(idx)
+        rows.append(("reprojection", part, reprojection_px(uv[:, :, idx], obs[:, :, idx]), "px"))
+    return rows

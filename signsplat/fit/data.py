@@ -1,0 +1,168 @@
+"""Reading the fit's inputs and writing its outputs (tables of ``signsplat.io.tables``).
+
+Every malformed input raises :class:`signsplat.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from signsplat.body import joints as J
+from signsplat.errors import InputError
+from signsplat.fit.cameras import Rig
+from signsplat.io.tables import TableError, read_table, write_table
+
+SMPLX_BLOCKS = ("betas", "expression", "global_orient", "body_pose", "jaw_pose", "leye_pose",
+                "reye_pose", "left_hand_pose", "right_hand_pose", "transl")
+
+
+def _read(path, table) -> pd.DataFrame:
+    try:
+        return read_table(path, table)
+    except TableError as exc:
+        raise InputError(str(exc)) from None
+
+
+def read_rig(path: str | os.PathLike, with_extrinsics: bool = True) -> tuple[Rig, str]:
+    """Static cameras from a ``cameras`` table -> (Rig sorted by view, scene name).
+
+    Rows with ``frame == -1`` (or the first row of each view) are used. With
+    ``with_extrinsics=False`` R, t are set to identity/zero (only intrinsics and sizes read).
+    """
+    df = _read(path, "cameras")
+    if df.empty:
+        raise InputError(f"{path}: cameras table has no rows")
+    df = df.sort_values(["view", "frame"]).groupby("view", as_index=False).first()
+    views = df["view"].to_numpy()
+    if not np.array_equal(views, np.arange(len(views))):
+        raise InputError(f"{path}: views must be 0..{len(views) - 1}, got {views.tolist()}")
+    K = np.zeros((len(df), 3, 3))
+    K[:, 0, 0], K[:, 1, 1] = df["fx"], df["fy"]
+    K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = df["cx"], df["cy"], 1.0
+    if with_extrinsics:
+        R = np.stack([np.asarray(r, float).reshape(3, 3) for r in df["R"]])
+        t = np.stack([np.asarray(x, float).reshape(3) for x in df["t"]])
+    else:
+        R, t = np.tile(np.eye(3), (len(df), 1, 1)), np.zeros((len(df), 3))
+    vals = np.concatenate([K.reshape(-1), R.reshape(-1), t.reshape(-1)])
+    if not np.isfinite(vals).all() or (K[:, 0, 0] <= 0).any():
+        raise InputError(f"{path}: non-finite or non-positive camera values")
+    return Rig(K=K, R=R, t=t, width=df["width"].to_numpy(int),
+               height=df["height"].to_numpy(int)), str(df["scene"].iloc[0])
+
+
+def read_keypoints(path: str | os.PathLike, num_views: int,
+                   frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A ``keypoints`` table -> (obs (V,T,133,3) float64 x, y, score; frames (T,) int).
+
+    Missing rows are unknown (score 0); frames default to min..max of the table (and of
+    ``frames`` when given). NaN coordinates are kept here and removed by the cleaning step.
+    """
+    df = _read(path, "keypoints")
+    if df.empty and frames is None:
+        raise InputError(f"{path}: keypoints table has no rows")
+    kp = df["kp"].to_numpy(np.int64)
+    view = df["view"].to_numpy(np.int64)
+    if len(df) and (kp.min() < 0 or kp.max() >= J.NUM_KEYPOINTS):
+        raise InputError(f"{path}: keypoint ids must lie in 0..{J.NUM_KEYPOINTS - 1}")
+    if len(df) and (view.min() < 0 or view.max() >= num_views):
+        raise InputError(f"{path}: view {int(view.max())} but the rig has {num_views} cameras")
+    fr = df["frame"].to_numpy(np.int64)
+    all_frames = np.unique(np.concatenate([fr, np.asarray(frames if frames is not None else [],
+                                                          np.int64)]))
+    if len(all_frames) == 0:
+        raise InputError(f"{path}: no frames")
+    seq = np.arange(all_frames.min(), all_frames.max() + 1)
+    if df.duplicated(["view", "frame", "kp"]).any():
+        raise InputError(f"{path}: duplicate (view, frame, kp) rows")
+    obs = np.zeros((num_views, len(seq), J.NUM_KEYPOINTS, 3))
+    ti = fr - seq[0]
+    obs[view, ti, kp, 0] = df["x"].to_numpy(np.float64)
+    obs[view, ti, kp, 1] = df["y"].to_numpy(np.float64)
+    obs[view, ti, kp, 2] = df["score"].to_numpy(np.float64)
+    return obs, seq
+
+
+def read_smplx(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """An ``smplx_params`` table -> (block -> (T,k) float64 sorted by frame, frames (T,))."""
+    df = _read(path, "smplx_params").sort_values("frame")
+    out = {}
+    for name in SMPLX_BLOCKS:
+        try:
+            out[name] = np.stack([np.asarray(v, np.float64) for v in df[name]])
+        except ValueError as exc:
+            raise InputError(f"{path}: column {name!r} has ragged lists ({exc})") from None
+    if df.attrs.get("hand_mean", "flat") != "flat":
+        raise InputError(f"{path}: hand_mean {df.attrs.get('hand_mean')!r}; only 'flat' is "
+                         "supported by the fit evaluation")
+    return out, df["frame"].to_numpy(np.int64)
+
+
+def read_frames(path: str | os.PathLike) -> pd.DataFrame:
+    """The ``frames`` table (image paths resolved against the table's folder)."""
+    df = _read(path, "frames").copy()
+    base = Path(path).parent
+    df["image_path"] = [str(base / p) for p in df["image"]]
+    return df
+
+
+def rig_from_frames(frames_df: pd.DataFrame, path: str | os.PathLike) -> Rig:
+    """Image sizes per view from each view's first image (no calibration); K is a placeholder
+    (identity focal) to be replaced by approximate intrinsics; R = I, t = 0."""
+    import cv2
+
+    views = np.unique(frames_df["view"].to_numpy())
+    if not np.array_equal(views, np.arange(len(views))):
+        raise InputError(f"{path}: views must be 0..{len(views) - 1}, got {views.tolist()}")
+    w, h = [], []
+    for v in views:
+        img_path = frames_df[frames_df["view"] == v]["image_path"].iloc[0]
+        img = cv2.imread(img_path, cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputError(f"{img_path}: not a readable image")
+        h.append(img.shape[0])
+        w.append(img.shape[1])
+    V = len(views)
+    return Rig(K=np.tile(np.eye(3), (V, 1, 1)), R=np.tile(np.eye(3), (V, 1, 1)),
+               t=np.zeros((V, 3)), width=np.asarray(w), height=np.asarray(h))
+
+
+def smplx_table(params: dict[str, np.ndarray], scene: str, frames: np.ndarray,
+                provenance: np.ndarray, num_keypoints: np.ndarray) -> pd.DataFrame:
+    """Rows of the ``smplx_params`` table plus ``provenance`` and ``num_keypoints`` columns."""
+    rows = {"scene": [scene] * len(frames), "frame": np.asarray(frames, np.int32)}
+    for name in SMPLX_BLOCKS:
+        arr = np.asarray(params[name], np.float32)
+        if not np.isfinite(arr).all():
+            raise ValueError(f"non-finite values in fitted block {name!r}")
+        rows[name] = list(arr)
+    rows["provenance"] = np.asarray(provenance, dtype=object)
+    rows["num_keypoints"] = np.asarray(num_keypoints, np.int32)
+    return pd.DataFrame(rows)
+
+
+def cameras_table(rig: Rig, scene: str, status: list[str]) -> pd.DataFrame:
+    """Rows of the ``cameras`` table (static: frame -1) plus a ``fit_status`` column."""
+    V = rig.num_views
+    vals = np.concatenate([rig.K.reshape(-1), rig.R.reshape(-1), rig.t.reshape(-1)])
+    if not np.isfinite(vals).all():
+        raise ValueError("non-finite fitted camera values")
+    return pd.DataFrame({
+        "scene": [scene] * V, "view": np.arange(V, dtype=np.int32),
+        "frame": np.full(V, -1, np.int32), "width": np.asarray(rig.width, np.int32),
+        "height": np.asarray(rig.height, np.int32), "fx": rig.K[:, 0, 0], "fy": rig.K[:, 1, 1],
+        "cx": rig.K[:, 0, 2], "cy": rig.K[:, 1, 2], "R": list(rig.R.reshape(V, 9)),
+        "t": list(rig.t.reshape(V, 3)), "fit_status": list(status),
+    })
+
+
+def write_outputs(out_dir: Path, smplx: pd.DataFrame, cams: pd.DataFrame,
+                  meta: dict[str, str]) -> tuple[Path, Path]:
+    """Write ``smplx_fit.parquet`` and ``cameras_fit.parquet`` atomically."""
+    p1 = write_table(smplx, out_dir / "smplx_fit.parquet", "smplx_params", metadata=meta)
+    p2 = write_table(cams, out_dir / "cameras_fit.parquet", "cameras", metadata=meta)
+    return p1, p2

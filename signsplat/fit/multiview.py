@@ -1,0 +1,151 @@
+"""Multi-view fit: SMPL-X over a sequence and the extrinsics of every camera, jointly.
+
+1. Cameras are initialised without ground truth: each view's PnP (OpenCV SQPnP + LM) of the
+   neutral body's head and torso keypoints (rest pose, mean shape, at the origin) against the
+   median of its first frames' detections. This defines the world frame: the body-anchored frame
+   of the first frames (y up, the signer facing +z). A view PnP cannot solve gets the coarse arc
+   prior from the config.
+2. Gauge: the reference camera (the PnP-solved view with the most observations) is held fixed,
+   which removes the 6-DoF world-frame freedom; scale is set by the body model.
+3. Stages (config ``fit.multiview.stages``) run with Adam: first per chunk of frames, each chunk
+   warm-started from the previous chunk's last frame (cameras fixed), then jointly over the
+   whole sequence with betas and the free cameras.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import torch
+
+from signsplat.body import joints as J
+from signsplat.fit import objective as obj
+from signsplat.fit import sequence as seq
+from signsplat.fit.bodyfit import FitParams, KeypointModel
+from signsplat.fit.cameras import CameraParams, Rig, pnp, rig_prior
+from signsplat.fit.solver import Problem, Stage, run_stage, run_warm_started
+
+log = logging.getLogger(__name__)
+
+#: Keypoints that move rigidly with the head and torso: nose, eyes, ears, shoulders, hips, face.
+PNP_KEYPOINTS = tuple(range(0, 7)) + (11, 12) + J.KP_FACE
+
+
+def neutral_keypoints(kpm: KeypointModel, dtype=torch.float32, device="cpu") -> np.ndarray:
+    """(133,3) keypoints of the rest-pose, mean-shape body at the origin (float64, metres)."""
+    with torch.no_grad():
+        _, kp, _ = kpm(transl=torch.zeros(1, 3, dtype=dtype, device=device))
+    return kp[0].double().cpu().numpy()
+
+
+def median_observation(obs_v: np.ndarray, frames: int) -> np.ndarray:
+    """Per-keypoint median over the first ``frames`` frames that observe it.
+
+    obs_v (T,133,3) of one view -> (133,3): x, y and the fraction of those frames observing it.
+    """
+    out = np.zeros((obs_v.shape[1], 3))
+    for k in range(obs_v.shape[1]):
+        ok = np.nonzero(obs_v[:, k, 2] > 0)[0][:frames]
+        if len(ok):
+            out[k, :2] = np.median(obs_v[ok, k, :2], axis=0)
+            out[k, 2] = len(ok) / frames
+    return out
+
+
+def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
+                cfg: dict) -> tuple[Rig, list[str], np.ndarray]:
+    """Cameras from PnP of the neutral body; returns (rig, status per view, rms px per view).
+
+    obs (V,T,133,3) cleaned observations; K (V,3,3). Status: 'pnp', 'prior' (PnP impossible
+    or implausible; arc prior used) or 'no_detections'.
+    """
+    V = obs.shape[0]
+    idx = np.asarray(PNP_KEYPOINTS)
+    chest = kp_neutral[[5, 6]].mean(0)
+    prior = rig_prior(K, width, height, V, cfg["camera_prior"]["arc_degrees"],
+                      cfg["camera_prior"]["distance"], chest)
+    R, t = prior.R.copy(), prior.t.copy()
+    status, rms = [], np.full(V, np.nan)
+    for v in range(V):
+        med = median_observation(obs[v], cfg["init_frames"])
+        m = med[idx, 2] > 0
+        if not m.any():
+            status.append("no_detections")
+            continue
+        sol = None
+        if m.sum() >= cfg["pnp_min_points"]:
+            sol = pnp(kp_neutral[idx][m], med[idx][m][:, :2], K[v])
+        if sol is None or sol[2] > cfg["pnp_max_rms_px"] or \
+                np.linalg.norm(sol[1]) > cfg["pnp_max_distance_m"]:
+            status.append("prior")
+            if sol is not None:
+                rms[v] = sol[2]
+            continue
+        R[v], t[v], rms[v] = sol
+        status.append("pnp")
+    return Rig(K=np.asarray(K, float), R=R, t=t, width=np.asarray(width),
+               height=np.asarray(height)), status, rms
+
+
+def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
+                  width, height, cfg: dict, device: torch.device | str = "cpu",
+                  dtype=torch.float32) -> seq.FitResult:
+    """Fit SMPL-X + cameras to cleaned observations.
+
+    kpm: keypoint model; obs (V,T,133,3) pixels + confidence (0 = ignore, no NaN);
+    frames (T,) frame numbers; K (V,3,3) intrinsics (calibrated or approximate); width/height
+    (V,) pixels; cfg: the validated ``fit`` config section (``cfg['multiview']`` for this mode).
+    """
+    t0 = time.perf_counter()
+    mv = cfg["multiview"]
+    V, T = obs.shape[:2]
+    fitted, count = seq.fitted_mask(obs, cfg["min_keypoints"])
+    if not fitted.any():
+        raise ValueError("no frame has enough keypoints to fit")
+    kp0 = neutral_keypoints(kpm, dtype, device)
+    rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
+    views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
+    solved = [v for v in range(V) if status[v] == "pnp"]
+    if not solved:
+        raise ValueError("no camera could be initialised: too few head/torso keypoints in "
+                         "every view's first frames")
+    ref = max(solved, key=lambda v: views_obs[v])
+    no_det = [v for v in range(V) if status[v] == "no_detections"]
+    cams = CameraParams(rig0, fixed=[ref] + no_det, refine_focal=mv["refine_focal"],
+                        dtype=dtype, device=device)
+    t_init = time.perf_counter()
+    log.info("cameras initialised: %s (reference view %d, PnP rms px %s)", status, ref,
+             np.round(rms, 2).tolist())
+
+    params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
+                       device=device)
+    problem = Problem(kpm=kpm, obs=torch.as_tensor(obs, dtype=dtype, device=device),
+                      weights=obj.Weights.from_config(cfg["weights"]),
+                      kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"],
+                      contiguous=torch.as_tensor(seq.contiguous_triplets(frames), device=device))
+    history = {}
+    for st_cfg in mv["stages"]:
+        stage = Stage.from_config(st_cfg)
+        ts = time.perf_counter()
+        if st_cfg.get("warm_start", False):
+            history[stage.name] = run_warm_started(problem, params, cams, stage,
+                                                   mv["chunk"], fitted)
+        else:
+            history[stage.name] = run_stage(problem, params, cams, stage)[-1:]
+        log.info("stage %s: %.1f s, final loss %s", stage.name, time.perf_counter() - ts,
+                 np.round(history[stage.name], 3).tolist())
+    raw = params.export()
+    filled, prov = seq.fill_gaps(raw, fitted)
+    t1 = time.perf_counter()
+    rig = cams.to_rig()
+    for v in range(V):
+        if status[v] == "no_detections":
+            log.warning("view %d has no detections: its camera is the arc prior, unconstrained", v)
+    return seq.FitResult(params=filled, rig=rig, frames=np.asarray(frames), provenance=prov,
+                         num_keypoints=count.astype(np.int64), camera_status=status,
+                         seconds={"camera_init": t_init - t0, "solve": t1 - t_init,
+                                  "total": t1 - t0},
+                         log={"reference_view": ref, **{f"pnp_rms_px_view{v}": float(r)
+                                                        for v, r in enumerate(rms)}})

@@ -1,0 +1,88 @@
+"""Diagnostic overlays: the fitted mesh and skeleton projected onto the input images (OpenCV).
+
+Drawn per image: mesh vertices as faint grey dots, the fitted COCO-WholeBody skeleton (body
+green, left hand blue, right hand red, face yellow dots) and the input keypoints as small white
+crosses, so misfits show as offsets between crosses and skeleton.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from signsplat.io.atomic import atomic_path
+
+BODY_EDGES = ((0, 1), (0, 2), (1, 3), (2, 4), (5, 6), (5, 7), (7, 9), (6, 8), (8, 10), (5, 11),
+              (6, 12), (11, 12), (11, 13), (13, 15), (12, 14), (14, 16))
+
+
+def _hand_edges(base: int) -> list[tuple[int, int]]:
+    edges = []
+    for finger in range(5):
+        prev = base
+        for k in range(4):
+            cur = base + 1 + finger * 4 + k
+            edges.append((prev, cur))
+            prev = cur
+    return edges
+
+
+LEFT_HAND_EDGES = tuple(_hand_edges(91))
+RIGHT_HAND_EDGES = tuple(_hand_edges(112))
+
+COLORS_BGR = {"body": (60, 200, 60), "left": (230, 120, 40), "right": (40, 40, 230),
+              "face": (0, 220, 240), "mesh": (170, 170, 170), "obs": (255, 255, 255)}
+
+
+def draw_overlay(image_rgb: np.ndarray, uv_kp: np.ndarray, obs: np.ndarray | None = None,
+                 uv_mesh: np.ndarray | None = None, scale: int = 2) -> np.ndarray:
+    """Draw onto a copy of ``image_rgb (H,W,3) uint8``; returns BGR uint8 (H*scale, W*scale, 3).
+
+    uv_kp (133,2) projected fitted keypoints; obs (133,3) input keypoints (score > 0 drawn);
+    uv_mesh (N,2) projected vertices (subsampled by the caller). Non-finite points are skipped.
+    """
+    img = cv2.cvtColor(np.ascontiguousarray(image_rgb), cv2.COLOR_RGB2BGR)
+    img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+
+    def p(xy):
+        return (int(round((xy[0] + 0.5) * scale - 0.5)), int(round((xy[1] + 0.5) * scale - 0.5)))
+
+    ok = lambda xy: np.isfinite(xy).all() and abs(xy[0]) < 1e5 and abs(xy[1]) < 1e5  # noqa: E731
+    if uv_mesh is not None:
+        for xy in uv_mesh:
+            if ok(xy):
+                cv2.circle(img, p(xy), 0, COLORS_BGR["mesh"], -1)
+    for edges, color in ((BODY_EDGES, "body"), (LEFT_HAND_EDGES, "left"),
+                         (RIGHT_HAND_EDGES, "right")):
+        for a, b in edges:
+            if ok(uv_kp[a]) and ok(uv_kp[b]):
+                cv2.line(img, p(uv_kp[a]), p(uv_kp[b]), COLORS_BGR[color], 1, cv2.LINE_AA)
+    for k in range(23, 91):
+        if ok(uv_kp[k]):
+            cv2.circle(img, p(uv_kp[k]), 1, COLORS_BGR["face"], -1)
+    if obs is not None:
+        for xy, s in zip(obs[:, :2], obs[:, 2]):
+            if s > 0 and ok(xy):
+                c = p(xy)
+                cv2.drawMarker(img, c, COLORS_BGR["obs"], cv2.MARKER_CROSS, 4, 1)
+    return img
+
+
+def write_overlay(path: str | Path, image_bgr: np.ndarray) -> Path:
+    """Write a PNG atomically; returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), image_bgr):
+            raise OSError(f"{path}: OpenCV could not write the overlay")
+    return path
+
+
+def pick_frames(frames: np.ndarray, provenance: np.ndarray, count: int) -> list[int]:
+    """Up to ``count`` evenly spaced positions of fitted frames (indices into ``frames``)."""
+    idx = np.nonzero(np.asarray(provenance) == "fitted")[0]
+    if count <= 0 or len(idx) == 0:
+        return []
+    pos = np.linspace(0, len(idx) - 1, min(count, len(idx))).round().astype(int)
+    return [int(idx[i]) for i in np.unique(pos)]

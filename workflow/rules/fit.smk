@@ -1,0 +1,69 @@
+# Stage 4: SMPL-X fitting (paper 3.1). Mode multiview when the sequence has more than one
+# camera, else singleview (the CLI decides from the number of cameras; config fit.mode forces).
+# Keypoints: config fit.keypoints = detected (perception stage, default) or ground_truth
+# (the simulator's keypoints_gt.parquet; synthetic scenes only).
+
+FIT_CFG = config.get("fit", {})
+
+
+def fit_keypoints(wildcards):
+    if FIT_CFG.get("keypoints", "detected") == "ground_truth" and wildcards.scene in SCENES:
+        return f"{RESULTS}/{wildcards.scene}/sim/keypoints_gt.parquet"
+    return f"{RESULTS}/{wildcards.scene}/perception/keypoints.parquet"
+
+
+def fit_inputs(wildcards):
+    files = {
+        "keypoints": fit_keypoints(wildcards),
+        "frames": frames_table(wildcards),
+        "body": rules.body_model.output[0],
+    }
+    if wildcards.scene in SCENES:
+        # cameras.parquet gives image sizes and calibrated intrinsics only (R, t never read);
+        # smplx_gt/cameras are the evaluation's ground truth.
+        files["calibration"] = f"{RESULTS}/{wildcards.scene}/sim/cameras.parquet"
+        files["gt_smplx"] = f"{RESULTS}/{wildcards.scene}/sim/smplx_gt.parquet"
+    return files
+
+
+def fit_extra_args(wildcards, input):
+    args = []
+    if "calibration" in input.keys():
+        args += ["--calibration", input.calibration, "--gt-cameras", input.calibration,
+                 "--gt-smplx", input.gt_smplx]
+    return " ".join(f"'{a}'" for a in args)
+
+
+rule fit_smplx:
+    input:
+        unpack(fit_inputs),
+    output:
+        smplx=f"{RESULTS}/{{scene}}/fit/smplx_fit.parquet",
+        cameras=f"{RESULTS}/{{scene}}/fit/cameras_fit.parquet",
+        eval=f"{RESULTS}/{{scene}}/fit/fit_eval.parquet",
+        log_json=f"{RESULTS}/{{scene}}/fit/fit_log.json",
+        overlays=directory(f"{RESULTS}/{{scene}}/fit/overlays"),
+    params:
+        cfg=as_json(FIT_CFG),
+        extra=fit_extra_args,
+        source=FIT_CFG.get("keypoints", "detected"),
+        betas=config["body_model"]["num_betas"],
+        expr=config["body_model"]["num_expression"],
+        device=config.get("device", "auto"),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/fit_smplx.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/fit_smplx.tsv"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    shell:
+        "{PY} -m signsplat fit --config-json {params.cfg:q} --scene {wildcards.scene}"
+        " --keypoints {input.keypoints:q} --frames {input.frames:q} --body {input.body:q}"
+        " --keypoints-source {params.source} --num-betas {params.betas}"
+        " --num-expression {params.expr} --device {params.device} --threads {threads}"
+        " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"
+
+
+FINAL_OUTPUTS.extend(expand(rules.fit_smplx.output.eval, scene=list(SEQUENCES)))
