@@ -1,0 +1,111 @@
+"""The comparison table end to end through the CLI, and its planning / config helpers."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from signsplat.cli import main
+from signsplat.colmap.compare import CompareConfig, evenly, plan_runs
+from signsplat.config import validate
+from signsplat.errors import InputError
+from signsplat.io.tables import read_table, write_table
+
+FAST = {"num_static_frames": 1, "sequence_frames": 2}
+
+
+def _fake_fit(cameras: pd.DataFrame, noise_deg: float, seed: int = 0) -> pd.DataFrame:
+    """Ground-truth cameras in another similarity frame, each rotated by ``noise_deg``."""
+    rng = np.random.default_rng(seed)
+    A = Rotation.random(random_state=seed).as_matrix()
+    s, b = 0.5, np.array([0.3, -1.0, 2.0])
+    rows = []
+    for r in cameras.itertuples(index=False):
+        R = np.asarray(r.R).reshape(3, 3)
+        t = np.asarray(r.t)
+        R_est, t_est = R @ A, (R @ b + t) / s  # same camera, world x_gt = s A x_est + b
+        axis = rng.normal(size=3)
+        d = Rotation.from_rotvec(np.radians(noise_deg) * axis / np.linalg.norm(axis)).as_matrix()
+        R_est, t_est = d @ R_est, d @ t_est  # rotate about the camera centre
+        rows.append(r._asdict() | {"R": R_est.ravel().tolist(), "t": t_est.ravel().tolist()})
+    return pd.DataFrame(rows).astype({"view": "int32", "frame": "int32"})
+
+
+def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
+    cams = read_table(textured_rig / "cameras.parquet", "cameras")
+    fit = write_table(_fake_fit(cams, 0.5), tmp_path / "cameras_fit.parquet", "cameras")
+    pd.DataFrame({"scene": ["textured"], "seconds": [12.5],
+                  "reproj_px_body": [1.5]}).to_parquet(tmp_path / "fit_eval.parquet")
+    out = tmp_path / "colmap" / "colmap_compare.parquet"
+    code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
+                 "--cameras", str(textured_rig / "cameras.parquet"), "--fit-cameras", str(fit),
+                 "--fit-eval", str(tmp_path / "fit_eval.parquet"), "--out", str(out),
+                 "--threads", "2", "--config-json", json.dumps(FAST | {"known_intrinsics": [True]})])
+    assert code == 0
+    df = read_table(out, "colmap_compare")
+    assert list(df["method"]) == ["colmap_static_frame_0", "colmap_sequence", "smplx_camera_solve"]
+    assert df["seconds"].notna().all()
+    colmap = df[df["method"] != "smplx_camera_solve"]
+    assert (colmap["status"] == "ok").all()
+    assert list(colmap["images"]) == [8, 16] and (colmap["registered"] >= 7).all()
+    assert (colmap["rot_error_deg"] < 1.0).all()
+    fit_row = df[df["method"] == "smplx_camera_solve"].iloc[0]
+    assert fit_row["registered"] == 8 and pd.isna(fit_row["points3d"])
+    assert fit_row["rot_error_deg"] == pytest.approx(0.5, abs=0.15)  # the injected noise
+    assert fit_row["seconds"] == 12.5 and fit_row["reproj_error_px"] == 1.5
+    assert fit_row["focal_error_pct"] == pytest.approx(0.0)
+    for rel in colmap["ply"]:
+        cloud = trimesh.load(out.parent / rel)
+        assert len(cloud.vertices) > 100
+    best = trimesh.load(out.parent / "points.ply")
+    assert len(best.vertices) == colmap["points3d"].max()
+    # world frame: nearly all points inside the 4 m wide room (a few SfM outliers may not be)
+    assert (np.abs(best.vertices[:, 0]) < 2.1).mean() > 0.95
+    printed = capsys.readouterr().out
+    assert "smplx_camera_solve" in printed and "seconds" in printed
+
+
+def test_cli_textureless_scene_records_failures(flat_rig, tmp_path):
+    out = tmp_path / "colmap_compare.parquet"
+    code = main(["colmap-compare", "--frames", str(flat_rig / "frames.parquet"),
+                 "--cameras", str(flat_rig / "cameras.parquet"), "--out", str(out),
+                 "--fit-eval", str(tmp_path / "absent.parquet"),
+                 "--config-json", json.dumps(FAST)])
+    assert code == 0
+    df = read_table(out, "colmap_compare")
+    assert len(df) == 4 and set(df["setting"]) == {"known_intrinsics", "estimated_intrinsics"}
+    assert df["status"].str.startswith("failed").all()
+    assert (df["registered"] < 2).all() and df["rot_error_deg"].isna().all()
+    assert df["seconds"].notna().all() and (df["ply"] == "").all()
+    assert b"element vertex 0\n" in (tmp_path / "points.ply").read_bytes()
+
+
+def test_cli_missing_fit_cameras_names_the_file(textured_rig, tmp_path, capsys):
+    code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
+                 "--cameras", str(textured_rig / "cameras.parquet"),
+                 "--fit-cameras", str(tmp_path / "nope.parquet"),
+                 "--out", str(tmp_path / "x.parquet")])
+    assert code == 2 and "nope.parquet" in capsys.readouterr().err
+
+
+def test_plan_runs_static_steps_and_sequence():
+    frames = pd.DataFrame({"view": np.repeat(np.arange(3), 10), "frame": np.tile(np.arange(10), 3)})
+    runs = plan_runs(frames, CompareConfig(num_static_frames=3, sequence_frames=4))
+    assert [r.method for r in runs] == ["colmap_static_frame_0", "colmap_static_frame_4",
+                                        "colmap_static_frame_9", "colmap_sequence"]
+    assert runs[1].keys == ((0, 4), (1, 4), (2, 4))
+    assert len(runs[-1].keys) == 12 and runs[-1].frame == -1
+    assert [r.method for r in plan_runs(frames, CompareConfig(static_frames=(5,),
+                                                              sequence_frames=0))] == \
+        ["colmap_static_frame_5"]
+    assert evenly(list(range(5)), 10) == list(range(5))
+
+
+def test_schema_defaults_build_the_config():
+    cfg = CompareConfig.from_dict(validate({}, "stages/colmap.schema.yaml"))
+    assert cfg == CompareConfig()
+    with pytest.raises(InputError, match="bogus"):
+        CompareConfig.from_dict({"bogus": 1})

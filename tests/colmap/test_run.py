@@ -1,0 +1,87 @@
+"""COLMAP runs on rendered rigs (signsplat.colmap.run + compare rows): success and recorded failure."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from signsplat.colmap.compare import SETTINGS, GroundTruth, RunSpec, colmap_row, image_inputs
+from signsplat.colmap.run import ColmapOptions, run_colmap
+from signsplat.io.tables import read_table
+
+
+def _inputs(folder: Path, frame: int = 0):
+    frames = read_table(folder / "frames.parquet", "frames")
+    gt = GroundTruth(read_table(folder / "cameras.parquet", "cameras"))
+    views = sorted(frames["view"].unique())
+    return image_inputs(frames, folder, gt, [(int(v), frame) for v in views]), gt
+
+
+def _run(folder: Path, known: bool = True, **kw):
+    images, gt = _inputs(folder)
+    result = run_colmap(images, ColmapOptions(known_intrinsics=known, num_threads=2, **kw))
+    row, al = colmap_row(folder.name, RunSpec("colmap_static_frame_0", 0, ()), SETTINGS[known],
+                         images, result, gt)
+    return result, row, al
+
+
+@pytest.mark.parametrize("known", [True, False])
+def test_textured_rig_registers_and_aligns(textured_rig, known):
+    result, row, al = _run(textured_rig, known)
+    assert result.status == "ok"
+    assert row["registered"] >= 7 and row["images"] == 8
+    assert row["points3d"] > 100
+    assert row["reproj_error_px"] < 1.0
+    assert row["rot_error_deg_max"] < 1.0
+    assert row["centre_error_m_max"] < 0.05
+    assert row["alignment"] == "umeyama"
+    assert row["seconds"] > 0
+    if known:  # fixed intrinsics come back unchanged (pixel-centre convention round trip)
+        images, _ = _inputs(textured_rig)
+        K = images[0].K
+        fx, fy, cx, cy = result.intrinsics[images[0].name]
+        np.testing.assert_allclose([fx, fy, cx, cy], [K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+        assert np.isnan(row["focal_error_pct"])
+    else:
+        assert row["focal_error_pct"] < 5.0
+    # the aligned points lie inside the room (x in [-2, 2], y in [0, 2.5], z in [-1.5, 1.5])
+    pts = al.similarity.apply(result.points)
+    inside = ((np.abs(pts[:, 0]) < 2.1) & (pts[:, 1] > -0.1) & (pts[:, 1] < 2.6)
+              & (np.abs(pts[:, 2]) < 1.6))
+    assert inside.mean() > 0.95
+
+
+def test_textureless_rig_is_a_recorded_failure(flat_rig):
+    result, row, al = _run(flat_rig)
+    assert result.status.startswith("failed")
+    assert row["registered"] < 2 and al is None
+    assert np.isnan(row["rot_error_deg"]) and np.isnan(row["centre_error_m"])
+    assert np.isnan(row["reproj_error_px"])
+    assert np.isfinite(row["seconds"])
+
+
+def test_nearly_coincident_cameras_do_not_initialise(coincident_rig):
+    """Pure rotation: plenty of matches but no triangulation angle -> failure, recorded."""
+    result, row, _ = _run(coincident_rig)
+    assert result.num_features > 1000  # it is not for lack of texture
+    assert result.status.startswith("failed") and row["registered"] < 2
+    assert np.isnan(row["centre_error_m"])
+
+
+def test_single_image_fails_without_running(textured_rig):
+    images, _ = _inputs(textured_rig)
+    result = run_colmap(images[:1], ColmapOptions())
+    assert result.status.startswith("failed") and result.registered == 0
+
+
+def test_timeout_kills_the_child_and_is_recorded(textured_rig):
+    result, row, _ = _run(textured_rig, timeout_seconds=0.05)
+    assert result.status.startswith("failed: timeout")
+    assert row["registered"] == 0 and row["seconds"] < 5.0
+
+
+def test_inline_run_matches_isolated_run(textured_rig):
+    a, row_a, _ = _run(textured_rig, isolate=False)
+    b, row_b, _ = _run(textured_rig, isolate=True)
+    assert a.status == b.status == "ok"
+    assert row_a["registered"] == row_b["registered"]
