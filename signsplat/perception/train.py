@@ -172,7 +172,8 @@ def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     export_onnx(net, out_path, cfg.seg_size, ["alpha"])
     return {"model": "segmenter", "parameters": count_parameters(net), "steps": cfg.seg_steps,
             "batch": cfg.seg_batch, "train_seconds": round(seconds, 1),
-            "final_loss": float(np.mean(losses[-50:])), "input_size": list(cfg.seg_size),
+            "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
+            "input_size": list(cfg.seg_size),
             "mean": list(SEG_MEAN), "std": list(SEG_STD), "frames": len(train)}
 
 
@@ -211,7 +212,8 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"])
     return {"model": "keypoints", "parameters": count_parameters(net), "steps": cfg.kp_steps,
             "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),
-            "final_loss": float(np.mean(losses[-50:])), "input_size": list(hw),
+            "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
+            "input_size": list(hw),
             "split_ratio": net.split_ratio, "mean": list(RTM_MEAN), "std": list(RTM_STD),
             "frames": len(train)}
 

@@ -120,3 +120,9 @@ def models(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture
 def fake_scene(tmp_path) -> Path:
     return make_fake_scene(tmp_path, empty=((1, 2),))
+
+
+@pytest.fixture
+def scene_factory():
+    """make_fake_scene, for tests that need other sizes."""
+    return make_fake_scene

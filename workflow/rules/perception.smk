@@ -1,0 +1,119 @@
+# Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints from ONNX models named in
+# config `perception` (defaults: the shipped models/segmenter.onnx, models/keypoints.onnx),
+# and their accuracy beside time on synthetic scenes. `snakemake train_detectors` retrains the
+# shipped models from simulated scenes (not part of `all`; copy its outputs to models/).
+from signsplat.config import validate as _validate
+
+PERCEPTION = _validate(
+    dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
+)
+
+
+def perception_dir(scene):
+    return f"{RESULTS}/{scene}/perception"
+
+
+rule segment:
+    input:
+        frames=frames_table,
+        model=PERCEPTION["segmenter"]["model"],
+    output:
+        table=f"{RESULTS}/{{scene}}/perception/masks.parquet",
+        masks=directory(f"{RESULTS}/{{scene}}/perception/masks"),
+        timings=f"{RESULTS}/{{scene}}/perception/segment_timings.parquet",
+    params:
+        cfg=as_json(PERCEPTION),
+        out=lambda w: perception_dir(w.scene),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/segment.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/segment.tsv"
+    threads: 2
+    resources:
+        mem_mb=2000,
+        runtime=30,
+    shell:
+        "{PY} -m signsplat segment --frames {input.frames} --out-dir {params.out}"
+        " --config-json {params.cfg:q} --threads {threads} --timings {output.timings}"
+        " > {log} 2>&1"
+
+
+rule detect_keypoints:
+    input:
+        frames=frames_table,
+        masks=rules.segment.output.table,
+        model=PERCEPTION["keypoints"]["model"],
+    output:
+        keypoints=f"{RESULTS}/{{scene}}/perception/keypoints.parquet",
+        timings=f"{RESULTS}/{{scene}}/perception/keypoints_timings.parquet",
+    params:
+        cfg=as_json(PERCEPTION),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/detect_keypoints.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/detect_keypoints.tsv"
+    threads: 2
+    resources:
+        mem_mb=2000,
+        runtime=30,
+    shell:
+        "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
+        " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
+        " --timings {output.timings} > {log} 2>&1"
+
+
+rule perception_eval:
+    input:
+        frames=f"{RESULTS}/{{scene}}/sim/frames.parquet",
+        gt=f"{RESULTS}/{{scene}}/sim/keypoints_gt.parquet",
+        masks=rules.segment.output.table,
+        keypoints=rules.detect_keypoints.output.keypoints,
+        seg_timings=rules.segment.output.timings,
+        kp_timings=rules.detect_keypoints.output.timings,
+    output:
+        f"{RESULTS}/{{scene}}/perception/eval.parquet",
+    params:
+        cfg=as_json(PERCEPTION),
+        sim=lambda w: f"{RESULTS}/{w.scene}/sim",
+        out=lambda w: perception_dir(w.scene),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/perception_eval.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/perception_eval.tsv"
+    threads: 2
+    resources:
+        mem_mb=2000,
+        runtime=15,
+    shell:
+        "{PY} -m signsplat perception-eval --sim-dir {params.sim} --perception-dir {params.out}"
+        " --out {output} --config-json {params.cfg:q} --threads {threads}"
+        " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
+
+
+rule train_detectors:
+    input:
+        body=rules.body_model.output[0],
+        glosses=rules.gloss_library.output[0],
+    output:
+        segmenter=f"{RESULTS}/_train/perception/models/segmenter.onnx",
+        keypoints=f"{RESULTS}/_train/perception/models/keypoints.onnx",
+        card=f"{RESULTS}/_train/perception/models/training.json",
+    params:
+        cfg=as_json(PERCEPTION),
+        work=f"{RESULTS}/_train/perception",
+    log:
+        f"{RESULTS}/_logs/train_detectors.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/train_detectors.tsv"
+    threads: 2
+    resources:
+        mem_mb=8000,
+        runtime=120,
+    shell:
+        "{PY} -m signsplat train-detectors --body {input.body} --glosses {input.glosses}"
+        " --work {params.work} --out-dir {params.work}/models --config-json {params.cfg:q}"
+        " --threads {threads} > {log} 2>&1"
+
+
+FINAL_OUTPUTS.extend(expand(rules.detect_keypoints.output.keypoints, scene=list(SEQUENCES)))
+FINAL_OUTPUTS.extend(expand(rules.perception_eval.output[0], scene=list(SCENES)))
