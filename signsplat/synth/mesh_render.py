@@ -235,12 +235,26 @@ def interpolate(raster: Raster, faces: np.ndarray, attributes: np.ndarray) -> np
 def interpolate_at(faces: np.ndarray, attributes: np.ndarray, face_ids: np.ndarray,
                    bary: np.ndarray) -> np.ndarray:
     """Barycentric interpolation: (V, C) attributes at P (face id, (3,) weights) -> (P, C)."""
-    tri = np.asarray(faces)[face_ids]  # (P, 3)
-    attributes = np.asarray(attributes, np.float32)
-    out = attributes[tri[:, 0]] * bary[:, 0:1]
-    out += attributes[tri[:, 1]] * bary[:, 1:2]
-    out += attributes[tri[:, 2]] * bary[:, 2:3]
-    return out.astype(np.float32, copy=False)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    attributes = np.ascontiguousarray(attributes, dtype=np.float32)
+    if attributes.ndim == 1:
+        return _interp_kernel(faces, attributes[:, None], np.ascontiguousarray(face_ids),
+                              np.ascontiguousarray(bary, dtype=np.float32))[:, 0]
+    return _interp_kernel(faces, attributes, np.ascontiguousarray(face_ids),
+                          np.ascontiguousarray(bary, dtype=np.float32))
+
+
+@numba.njit(cache=True, parallel=True)
+def _interp_kernel(faces, attributes, face_ids, bary):
+    P, C = face_ids.shape[0], attributes.shape[1]
+    out = np.empty((P, C), np.float32)
+    for p in numba.prange(P):
+        f = face_ids[p]
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        wa, wb, wc = bary[p, 0], bary[p, 1], bary[p, 2]
+        for k in range(C):
+            out[p, k] = wa * attributes[a, k] + wb * attributes[b, k] + wc * attributes[c, k]
+    return out
 
 
 def face_attribute(raster: Raster, faces: np.ndarray, vertex_values: np.ndarray) -> np.ndarray:
@@ -297,9 +311,26 @@ def scale_intrinsics(K: np.ndarray, factor: int) -> np.ndarray:
 
 
 def downsample(image: np.ndarray, factor: int) -> np.ndarray:
-    """Box-filter an (H*f, W*f, ...) array down to (H, W, ...) (mean over f x f blocks)."""
+    """Box-filter an (H*f, W*f) or (H*f, W*f, C) array down to (H, W[, C]) float32."""
     if factor == 1:
         return image
-    h, w = image.shape[0] // factor, image.shape[1] // factor
-    shaped = image.reshape(h, factor, w, factor, *image.shape[2:])
-    return shaped.mean(axis=(1, 3))
+    image = np.asarray(image, np.float32)
+    flat = image if image.ndim == 3 else image[..., None]
+    out = _downsample_kernel(np.ascontiguousarray(flat), int(factor))
+    return out if image.ndim == 3 else out[..., 0]
+
+
+@numba.njit(cache=True, parallel=True)
+def _downsample_kernel(image, f):
+    H, W, C = image.shape[0] // f, image.shape[1] // f, image.shape[2]
+    out = np.zeros((H, W, C), np.float32)
+    scale = 1.0 / (f * f)
+    for y in numba.prange(H):
+        for x in range(W):
+            for dy in range(f):
+                for dx in range(f):
+                    for k in range(C):
+                        out[y, x, k] += image[y * f + dy, x * f + dx, k]
+            for k in range(C):
+                out[y, x, k] *= scale
+    return out

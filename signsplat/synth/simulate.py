@@ -80,35 +80,56 @@ def _shade_samples(raster: mr.Raster, verts: np.ndarray, faces: np.ndarray, n_si
                    signer: SignerMesh, prop_colors: np.ndarray | None,
                    prop_normals: np.ndarray | None, chain: EffectChain,
                    cam: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Colour (Hs,Ws,3) float32 and signer coverage (Hs,Ws) bool of one raster."""
+    """Colour (Hs,Ws,3) float32 and signer coverage (Hs,Ws) bool of one raster.
+
+    ``verts``/``faces`` hold the signer followed by any props (faces >= ``n_signer``).
+    """
     H, W = raster.shape
-    rgb = np.zeros((H, W, 3), np.float32)
-    drawn = raster.mask
-    fid = raster.face_id[drawn]
-    bary = raster.bary[drawn]
-    is_signer = fid < n_signer
-    colors = np.empty((len(fid), 3), np.float32)
-    sf, sb = fid[is_signer], bary[is_signer]
-    canon = mr.interpolate_at(signer.faces, signer.canonical, sf, sb)
-    labels = mr.nearest_corner(signer.faces, signer.part_labels, sf, sb)
-    colors[is_signer] = np.clip(signer.colorize(canon, labels), 0.0, 1.0)
-    if prop_colors is not None:
-        colors[~is_signer] = prop_colors[fid[~is_signer] - n_signer]
+    fid_all = raster.face_id.reshape(-1)
+    flat = np.flatnonzero(fid_all >= 0)
+    fid = fid_all[flat]
+    bary = raster.bary.reshape(-1, 3)[flat]
     shaders = chain.at("shade")
+    n_vert = signer.canonical.shape[0]
+    if prop_colors is None:
+        sig = None  # every drawn sample is the signer
+        sf, sb = fid, bary
+    else:
+        is_signer = fid < n_signer
+        sig = np.flatnonzero(is_signer)
+        prop = np.flatnonzero(~is_signer)
+        sf, sb = fid[sig], bary[sig]
+    # one gather for everything interpolated on the signer
+    attrs = signer.canonical
     if shaders:
-        normals = np.empty((len(fid), 3), np.float32)
-        vn = mr.vertex_normals(verts[: signer.canonical.shape[0]], signer.faces)
-        normals[is_signer] = mr.interpolate_at(signer.faces, vn, sf, sb)
-        if prop_normals is not None:
-            normals[~is_signer] = prop_normals[fid[~is_signer] - n_signer]
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        points = mr.interpolate_at(faces, verts, fid, bary)
+        vn = mr.vertex_normals(verts[:n_vert], signer.faces)
+        attrs = np.concatenate([signer.canonical, vn, verts[:n_vert].astype(np.float32)], 1)
+    values = mr.interpolate_at(signer.faces, attrs, sf, sb)
+    labels = mr.nearest_corner(signer.faces, signer.part_labels, sf, sb)
+    signer_colors = np.clip(signer.colorize(values[:, :3], labels), 0.0, 1.0)
+    if sig is None:
+        colors = signer_colors.astype(np.float32, copy=False)
+    else:
+        colors = np.empty((len(fid), 3), np.float32)
+        colors[sig] = signer_colors
+        colors[prop] = prop_colors[fid[prop] - n_signer]
+    if shaders:
+        if sig is None:
+            normals, points = values[:, 3:6], values[:, 6:9]
+        else:
+            normals = np.empty((len(fid), 3), np.float32)
+            points = np.empty((len(fid), 3), np.float32)
+            normals[sig], points[sig] = values[:, 3:6], values[:, 6:9]
+            normals[prop] = prop_normals[fid[prop] - n_signer]
+            points[prop] = mr.interpolate_at(faces, verts, fid[prop], bary[prop])
+        normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         for effect in shaders:
             colors = effect.shade(colors, normals, points, cam)
-    rgb[drawn] = colors
-    signer_hit = np.zeros((H, W), bool)
-    signer_hit[drawn] = is_signer
-    return rgb, signer_hit
+    rgb = np.zeros((H * W, 3), np.float32)
+    rgb[flat] = colors
+    signer_hit = np.zeros(H * W, bool)
+    signer_hit[flat if sig is None else flat[sig]] = True
+    return rgb.reshape(H, W, 3), signer_hit.reshape(H, W)
 
 
 def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: SignerMesh,
