@@ -19,6 +19,7 @@ import pandas as pd
 
 from signsplat.colmap.compare import CompareConfig, compare_scene
 from signsplat.colmap.ply import write_points_ply
+from signsplat.config import validate
 from signsplat.errors import InputError
 from signsplat.io.tables import read_table, write_table
 
@@ -40,11 +41,12 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _config(text: str) -> CompareConfig:
+    """The `colmap` config section, validated against its schema (defaults filled in)."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    return CompareConfig.from_dict(data)
+    return CompareConfig.from_dict(validate(data, "stages/colmap.schema.yaml", "--config-json"))
 
 
 def colmap_compare(argv: list[str]) -> int:
@@ -63,6 +65,7 @@ def colmap_compare(argv: list[str]) -> int:
         else:
             log.warning("%s not found: the SMPL-X row has no seconds", args.fit_eval)
     ply_dir = Path(args.ply_dir) if args.ply_dir else out.parent / "ply"
+    ply_dir.mkdir(parents=True, exist_ok=True)  # a workflow output even when every run fails
     table, points, colors = compare_scene(
         frames, Path(args.frames).parent, cameras, cfg, threads=args.threads, ply_dir=ply_dir,
         table_dir=out.parent, fit_cameras=fit_cameras, fit_eval=fit_eval,

@@ -213,50 +213,58 @@ def fit_rows(scene: str, fit_cameras: pd.DataFrame, gt: GroundTruth,
              fit_eval: pd.DataFrame | None) -> list[dict]:
     """The SMPL-X camera solve as one row, measured against ground truth like COLMAP's runs.
 
-    Seconds and reprojection error come from ``fit_eval`` when it carries them (columns
-    ``seconds`` or ``seconds_per_frame`` x ``frames``; a column whose name contains 'reproj');
-    otherwise they are NaN and the status says so.
+    Cameras whose ``fit_status`` is 'no_detections' carry no solved pose and are skipped.
+    Seconds (the whole fit: body and cameras) and the mean reprojection error come from
+    ``fit_eval`` (the fitting stage's long table: metric, part, value, seconds_total); without
+    it they are NaN and the status says so. ``setting`` = fit mode + keypoint source.
     """
     R_e, t_e, R_g, t_g, focal = [], [], [], [], []
-    for row in fit_cameras.itertuples(index=False):
-        R = np.asarray(row.R, float).reshape(3, 3)
-        t = np.asarray(row.t, float).reshape(3)
-        if not (np.isfinite(R).all() and np.isfinite(t).all()):
+    skipped = 0
+    for row in fit_cameras.to_dict("records"):
+        R = np.asarray(row["R"], float).reshape(3, 3)
+        t = np.asarray(row["t"], float).reshape(3)
+        if row.get("fit_status") == "no_detections" or not (
+                np.isfinite(R).all() and np.isfinite(t).all()):
+            skipped += 1
             continue
-        Rg, tg = gt.pose(int(row.view), int(row.frame))
+        Rg, tg = gt.pose(int(row["view"]), int(row["frame"]))
         R_e.append(R), t_e.append(t), R_g.append(Rg), t_g.append(tg)
-        fg = gt.row(int(row.view), int(row.frame)).fx
-        focal.append(abs(float(row.fx) - fg) / fg * 100.0)
+        fg = gt.row(int(row["view"]), int(row["frame"])).fx
+        focal.append(abs(float(row["fx"]) - fg) / fg * 100.0)
     errors, _ = camera_error_columns(R_e, t_e, R_g, t_g)
     if focal:
         errors["focal_error_pct"] = float(np.mean(focal))
-    seconds, reproj, notes = _fit_eval_figures(fit_eval)
-    status = "ok" if len(R_e) >= 2 else f"failed: only {len(R_e)} finite camera(s)"
-    if notes and status == "ok":
-        status = "ok (" + "; ".join(notes) + ")"
-    setting = str(fit_cameras.attrs.get("mode", "multiview"))
+    seconds, reproj, notes = fit_eval_figures(fit_eval)
+    if skipped:
+        notes.append(f"{skipped} camera(s) without a solved pose")
+    status = "ok" if len(R_e) >= 2 else f"failed: only {len(R_e)} solved camera(s)"
+    if notes:
+        status += " (" + "; ".join(notes) + ")"
+    attrs = fit_cameras.attrs
+    setting = "_".join(str(attrs[k]) for k in ("mode", "keypoints") if attrs.get(k)) or "fit"
     return [dict(scene=scene, method="smplx_camera_solve", setting=setting, frame=-1,
                  images=int(len(fit_cameras)), registered=len(R_e), points3d=None,
                  reproj_error_px=reproj, **errors, seconds=seconds, status=status, ply="")]
 
 
-def _fit_eval_figures(fit_eval: pd.DataFrame | None) -> tuple[float, float, list[str]]:
-    """(seconds, reprojection px, notes) from the fitting stage's evaluation table."""
+def fit_eval_figures(fit_eval: pd.DataFrame | None) -> tuple[float, float, list[str]]:
+    """(seconds, mean reprojection px, notes) from the fitting stage's ``fit_eval`` table."""
     if fit_eval is None or fit_eval.empty:
         return np.nan, np.nan, ["no fit_eval.parquet: seconds unknown"]
-    notes = []
+    notes: list[str] = []
+    seconds = reproj = np.nan
     cols = set(fit_eval.columns)
-    numeric = fit_eval.select_dtypes("number")
-    if "seconds" in cols:
-        seconds = float(pd.to_numeric(fit_eval["seconds"], errors="coerce").max())
-    elif "seconds_per_frame" in cols and ({"frames", "num_frames"} & cols):
-        n = fit_eval["frames" if "frames" in cols else "num_frames"]
-        seconds = float((fit_eval["seconds_per_frame"] * n).max())
-    else:
-        seconds = np.nan
+    if "seconds_total" in cols:
+        seconds = float(fit_eval["seconds_total"].max())
+    if {"metric", "part", "value"} <= cols:
+        pick = lambda m: fit_eval.loc[(fit_eval["metric"] == m)  # noqa: E731
+                                      & (fit_eval["part"] == "all"), "value"]
+        if np.isnan(seconds) and len(pick("seconds")):
+            seconds = float(pick("seconds").iloc[0])
+        if len(pick("reprojection")):
+            reproj = float(pick("reprojection").iloc[0])
+    if np.isnan(seconds):
         notes.append("fit_eval has no seconds")
-    reproj_cols = [c for c in numeric.columns if "reproj" in c.lower()]
-    reproj = float(np.nanmean(numeric[reproj_cols].to_numpy())) if reproj_cols else np.nan
     return seconds, reproj, notes
 
 

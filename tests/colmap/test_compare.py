@@ -36,9 +36,16 @@ def _fake_fit(cameras: pd.DataFrame, noise_deg: float, seed: int = 0) -> pd.Data
 
 def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
     cams = read_table(textured_rig / "cameras.parquet", "cameras")
-    fit = write_table(_fake_fit(cams, 0.5), tmp_path / "cameras_fit.parquet", "cameras")
-    pd.DataFrame({"scene": ["textured"], "seconds": [12.5],
-                  "reproj_px_body": [1.5]}).to_parquet(tmp_path / "fit_eval.parquet")
+    fit_df = _fake_fit(cams, 0.5)
+    fit_df["fit_status"] = ["no_detections"] + ["pnp"] * (len(fit_df) - 1)
+    fit = write_table(fit_df, tmp_path / "cameras_fit.parquet", "cameras",
+                      metadata={"mode": "multiview", "keypoints": "ground_truth"})
+    pd.DataFrame({  # the fitting stage's long layout (table fit_eval)
+        "scene": "textured", "mode": "multiview", "keypoints": "ground_truth",
+        "metric": ["reprojection", "reprojection", "camera_rotation", "seconds"],
+        "part": ["all", "left_hand", "cameras", "all"], "value": [1.5, 3.0, 0.4, 12.5],
+        "unit": ["px", "px", "deg", "s"], "seconds_total": 12.5,
+        "seconds_per_frame": 6.25}).to_parquet(tmp_path / "fit_eval.parquet")
     out = tmp_path / "colmap" / "colmap_compare.parquet"
     code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
                  "--cameras", str(textured_rig / "cameras.parquet"), "--fit-cameras", str(fit),
@@ -53,7 +60,9 @@ def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
     assert list(colmap["images"]) == [8, 16] and (colmap["registered"] >= 7).all()
     assert (colmap["rot_error_deg"] < 1.0).all()
     fit_row = df[df["method"] == "smplx_camera_solve"].iloc[0]
-    assert fit_row["registered"] == 8 and pd.isna(fit_row["points3d"])
+    assert fit_row["registered"] == 7 and pd.isna(fit_row["points3d"])  # one without pose
+    assert fit_row["setting"] == "multiview_ground_truth"
+    assert fit_row["status"].startswith("ok (1 camera")
     assert fit_row["rot_error_deg"] == pytest.approx(0.5, abs=0.15)  # the injected noise
     assert fit_row["seconds"] == 12.5 and fit_row["reproj_error_px"] == 1.5
     assert fit_row["focal_error_pct"] == pytest.approx(0.0)
@@ -109,3 +118,21 @@ def test_schema_defaults_build_the_config():
     assert cfg == CompareConfig()
     with pytest.raises(InputError, match="bogus"):
         CompareConfig.from_dict({"bogus": 1})
+
+
+def test_cli_rejects_a_bad_config_naming_the_key(textured_rig, tmp_path, capsys):
+    code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
+                 "--cameras", str(textured_rig / "cameras.parquet"),
+                 "--out", str(tmp_path / "x.parquet"),
+                 "--config-json", json.dumps({"sequence_frames": -1})])
+    assert code == 2 and "sequence_frames" in capsys.readouterr().err
+
+
+def test_fit_row_without_fit_eval_says_seconds_unknown(textured_rig):
+    from signsplat.colmap.compare import GroundTruth, fit_rows
+
+    cams = read_table(textured_rig / "cameras.parquet", "cameras")
+    (row,) = fit_rows("textured", _fake_fit(cams, 0.0), GroundTruth(cams), None)
+    assert row["registered"] == 8 and row["rot_error_deg_max"] < 1e-6
+    assert row["centre_error_m_max"] < 1e-9 and np.isnan(row["seconds"])
+    assert "seconds unknown" in row["status"]
