@@ -38,7 +38,8 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Simila
     src = np.asarray(src, float)
     dst = np.asarray(dst, float)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise ValueError(f"umeyama needs two (N,3) arrays with N >= 3, got {src.shape}, {dst.shape}")
+        raise ValueError(f"umeyama needs two (N,3) arrays with N >= 3, got {src.shape}, "
+                         f"{dst.shape}")
     mu_s, mu_d = src.mean(0), dst.mean(0)
     xs, xd = src - mu_s, dst - mu_d
     cov = xd.T @ xs / len(src)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 from pathlib import Path
 
 import pandas as pd
@@ -35,7 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="colmap_compare.parquet to write")
     p.add_argument("--ply", help="baseline point cloud PLY (default: beside --out, points.ply)")
     p.add_argument("--ply-dir", help="folder of per-run PLYs (default: beside --out, ply/)")
-    p.add_argument("--work-dir", help="parent of the temporary COLMAP folders (default: system tmp)")
+    p.add_argument("--work-dir", help="parent of the temporary COLMAP folders (default: tmp)")
     p.add_argument("--threads", type=int, default=1)
     return p
 

@@ -54,8 +54,9 @@ def textured_room(textureless: bool = False) -> list[Quad]:
     ]
 
 
-def look_at(centre: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
-    """World-to-camera ``(R (3,3), t (3,))`` of an OpenCV camera at ``centre`` looking at ``target``."""
+def look_at(centre: np.ndarray, target: np.ndarray,
+            up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera ``(R (3,3), t (3,))`` of an OpenCV camera at ``centre`` facing ``target``."""
     z = target - centre
     z = z / np.linalg.norm(z)
     x = np.cross(z, np.asarray(up, float))  # image x to the right, y down
@@ -81,7 +82,7 @@ def arc_cameras(count: int, arc_degrees: float, distance: float = 3.2, height: f
 
 
 def intrinsics(width: int, height: int, fov_degrees: float) -> np.ndarray:
-    """(3,3) K with vertical field of view ``fov_degrees`` and the centre at ``(w-1)/2, (h-1)/2``."""
+    """(3,3) K with vertical field of view ``fov_degrees``, centre ``((w-1)/2, (h-1)/2)``."""
     f = 0.5 * height / np.tan(np.radians(fov_degrees) / 2)
     return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
 
@@ -103,7 +104,7 @@ def _bilinear(tex: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def render(quads: list[Quad], K: np.ndarray, R: np.ndarray, t: np.ndarray, width: int,
            height: int, supersample: int = 2) -> np.ndarray:
-    """Ray-cast the quads into an (height, width, 3) uint8 RGB image (box-filtered supersampling)."""
+    """Ray-cast the quads into a (height, width, 3) uint8 RGB image (box-filtered supersampling)."""
     s = supersample
     us, vs = np.meshgrid((np.arange(width * s) + 0.5) / s - 0.5,
                          (np.arange(height * s) + 0.5) / s - 0.5)

@@ -108,3 +108,35 @@ def test_rotation_angle_deg():
     a = Rotation.random(4, random_state=0).as_matrix()
     b = Rotation.from_rotvec(np.tile([0, 0, np.radians(30.0)], (4, 1))).as_matrix() @ a
     np.testing.assert_allclose(rotation_angle_deg(b, a), 30.0, atol=1e-9)
+
+
+def _look_at_rig(centres: np.ndarray):
+    """Cameras at ``centres`` (N,3) all looking at the origin."""
+    Rs = []
+    for c in centres:
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        Rs.append(np.stack([x, np.cross(z, x), z]))
+    R = np.stack(Rs)
+    return R, -np.einsum("nij,nj->ni", R, centres)
+
+
+def test_coplanar_arc_cameras_align_exactly_with_umeyama():
+    """A studio arc: every centre at the same height (coplanar, not collinear)."""
+    ang = np.radians(np.linspace(-75, 75, 6))
+    centres = np.stack([2 * np.sin(ang), np.full(6, 0.1), 2 * np.cos(ang)], 1)
+    R, t = _look_at_rig(centres)
+    sim = _random_similarity(11)
+    al = align_cameras(*_express_in(sim, R, t), R, t)
+    assert al.method == "umeyama"
+    assert al.rotation_deg.max() < 1e-6 and al.centre_m.max() < 1e-9
+
+
+def test_collinear_cameras_fall_back_to_orientations():
+    centres = np.stack([np.linspace(-1, 1, 5), np.full(5, 0.2), np.full(5, 2.0)], 1)
+    R, t = _look_at_rig(centres)
+    sim = _random_similarity(12)
+    al = align_cameras(*_express_in(sim, R, t), R, t)
+    assert al.method == "orientation"
+    assert al.rotation_deg.max() < 1e-6 and al.centre_m.max() < 1e-9

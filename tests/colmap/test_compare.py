@@ -50,7 +50,8 @@ def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
     code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
                  "--cameras", str(textured_rig / "cameras.parquet"), "--fit-cameras", str(fit),
                  "--fit-eval", str(tmp_path / "fit_eval.parquet"), "--out", str(out),
-                 "--threads", "2", "--config-json", json.dumps(FAST | {"known_intrinsics": [True]})])
+                 "--threads", "2",
+                 "--config-json", json.dumps(FAST | {"known_intrinsics": [True]})])
     assert code == 0
     df = read_table(out, "colmap_compare")
     assert list(df["method"]) == ["colmap_static_frame_0", "colmap_sequence", "smplx_camera_solve"]

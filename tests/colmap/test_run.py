@@ -1,4 +1,4 @@
-"""COLMAP runs on rendered rigs (signsplat.colmap.run + compare rows): success and recorded failure."""
+"""COLMAP runs on rendered rigs (signsplat.colmap.run, compare rows): success, recorded failure."""
 
 from pathlib import Path
 
