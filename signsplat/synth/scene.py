@@ -16,6 +16,7 @@ A scene spec is the validated dict of ``config/scenes/<name>.yaml``
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -26,8 +27,8 @@ from signsplat.body.joints import POSE_BLOCKS
 from signsplat.errors import InputError, SignSplatError
 from signsplat.synth.effects import Camera
 
-__all__ = ["look_at", "camera_rig", "scene_target", "build_motion", "compose_clips",
-           "params_at", "SceneError", "ROTATION_BLOCKS"]
+__all__ = ["look_at", "camera_rig", "scene_target", "build_motion", "params_at",
+           "check_scene", "scene_name", "SceneError", "ROTATION_BLOCKS"]
 
 ROTATION_BLOCKS = tuple(name for name, _ in POSE_BLOCKS)  # axis-angle blocks
 # blocks a gloss clip contributes; betas, global_orient and transl come from the scene
@@ -108,12 +109,6 @@ def _slerp_rotvec(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out.reshape(len(w), -1).numpy()
 
 
-def _ease(n: int) -> np.ndarray:
-    """n weights strictly between 0 and 1 with a cubic ease-in-out (smoothstep)."""
-    s = np.arange(1, n + 1) / (n + 1)
-    return s * s * (3 - 2 * s)
-
-
 def _resample(track: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
     """Linear resampling of a (N, k) track from ``src_fps`` to ``dst_fps``."""
     if abs(src_fps - dst_fps) < 1e-9 or len(track) < 2:
@@ -125,45 +120,19 @@ def _resample(track: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
     return np.stack([np.interp(t_dst, t_src, track[:, j]) for j in range(track.shape[1])], 1)
 
 
-def compose_clips(clips: Sequence[Mapping[str, np.ndarray]], hold_frames: int = 2,
-                  transition_frames: int = 6) -> dict[str, np.ndarray]:
-    """Concatenate clips (dicts of (N_i, k) blocks) with holds and eased transitions.
+def _stitch(clips, hold_frames: int, transition_frames: int) -> dict[str, np.ndarray]:
+    """Compose gloss clips with ``signsplat.stitch.motion.stitch_clips`` (SLERP + cubic ease).
 
-    Each clip's last frame is held ``hold_frames`` frames; between clips ``transition_frames``
-    frames interpolate from the last pose of one clip to the first of the next (SLERP per joint
-    for axis-angle blocks, linear for others, smoothstep easing). Blocks are those of the first
-    clip; every clip must have them.
+    ``hold_frames`` holds the first and last pose of every gloss; ``transition_frames`` is the
+    shortest transition (the stitcher lengthens transitions with large joint motion).
     """
-    if not clips:
-        raise SceneError("motion: no clips to compose")
-    keys = list(clips[0])
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    for i, clip in enumerate(clips):
-        if i > 0 and transition_frames > 0:
-            w = _ease(transition_frames)
-            for k in keys:
-                a, b = parts[k][-1][-1], np.asarray(clip[k], np.float64)[0]
-                if k in ROTATION_BLOCKS:
-                    parts[k].append(_slerp_rotvec(a, b, w))
-                else:
-                    parts[k].append(a[None] * (1 - w[:, None]) + b[None] * w[:, None])
-        for k in keys:
-            track = np.asarray(clip[k], np.float64)
-            parts[k].append(track)
-            if hold_frames > 0:
-                parts[k].append(np.repeat(track[-1:], hold_frames, axis=0))
-    return {k: np.concatenate(v, axis=0) for k, v in parts.items()}
+    from signsplat.stitch.motion import StitchConfig, stitch_clips
 
-
-def _stitch(clips, hold_frames, transition_frames):
-    """Compose with ``signsplat.stitch.motion.stitch_clips`` when available, else locally."""
-    try:
-        from signsplat.stitch.motion import stitch_clips
-    except ImportError:
-        return compose_clips(clips, hold_frames, transition_frames)
-    return {k: np.asarray(v, np.float64) for k, v in
-            stitch_clips(clips, hold_frames=hold_frames,
-                         transition_frames=transition_frames).items()}
+    config = StitchConfig(hold_start=hold_frames, hold_end=hold_frames,
+                          min_transition=transition_frames,
+                          max_transition=max(transition_frames, StitchConfig.max_transition))
+    out = stitch_clips(clips, config)
+    return {k: np.asarray(v, np.float64) for k, v in out.items() if k in _CLIP_BLOCKS}
 
 
 def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: float,
@@ -178,20 +147,14 @@ def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: floa
     clips = []
     for g in names:
         clip = library[g]
-        if getattr(clip, "hand_mean", "flat") != "flat":
+        if clip.hand_mean != "flat":
             raise SceneError(f"motion.glosses: gloss {g!r} stores hand poses relative to the "
                              f"MANO mean ({clip.hand_mean!r}); the simulator needs 'flat'")
-        src_fps = float(getattr(clip, "fps", fps))
-        clips.append({k: _resample(np.asarray(v, np.float64), src_fps, fps)
-                      for k, v in clip.poses.items() if k in _CLIP_BLOCKS})
-    # every clip gets the same blocks (missing ones are zero: rest pose / neutral face)
-    keys = sorted({k for c in clips for k in c})
-    for c in clips:
-        n = len(next(iter(c.values())))
-        for k in keys:
-            if k not in c:
-                width = next(o[k].shape[1] for o in clips if k in o)
-                c[k] = np.zeros((n, width))
+        if abs(float(clip.fps) - fps) > 1e-6:
+            clip = replace(clip, fps=fps, poses={
+                k: _resample(np.asarray(v, np.float64), float(clip.fps), fps).astype(np.float32)
+                for k, v in clip.poses.items()})
+        clips.append(clip)
     return _stitch(clips, hold_frames, transition_frames)
 
 

@@ -98,24 +98,32 @@ def test_default_scenes_frame_the_signing_space():
         assert 0.003 <= mpp <= 0.005, (name, mpp)
 
 
-def clip(n, value, k=63):
-    return {"body_pose": np.full((n, k), value), "expression": np.full((n, 10), value)}
+def test_gloss_motion_is_stitched_with_holds_and_smooth_transitions(gloss_library_path):
+    from signsplat.synth.glosses import load_gloss_library
 
-
-def test_compose_clips_holds_and_transitions():
-    a, b = clip(5, 0.0), clip(4, 0.5)
-    a["body_pose"][:, 0] = np.linspace(0, 0.2, 5)
-    out = sc.compose_clips([a, b], hold_frames=2, transition_frames=3)
-    assert out["body_pose"].shape == (5 + 2 + 3 + 4 + 2, 63)
-    np.testing.assert_allclose(out["body_pose"][:5], a["body_pose"])
-    np.testing.assert_allclose(out["body_pose"][5:7], np.repeat(a["body_pose"][-1:], 2, 0))
-    np.testing.assert_allclose(out["body_pose"][10:14], b["body_pose"])
-    tr = out["expression"][7:10, 0]
-    assert np.all(np.diff(tr) > 0) and 0 < tr[0] and tr[-1] < 0.5  # eased, monotone
-    # the transition of a rotation block is a SLERP: a constant axis keeps its direction
-    rot = out["body_pose"][7:10, 3:6]
-    np.testing.assert_allclose(rot / np.linalg.norm(rot, axis=1, keepdims=True),
-                               np.full((3, 3), 1 / np.sqrt(3)), atol=1e-9)
+    lib = load_gloss_library(gloss_library_path)
+    s = spec(motion={"glosses": ["HELLO", "BOOK"], "hold_frames": 2, "transition_frames": 4},
+             signer={"betas": [0.3], "expression_scale": 0.5})
+    m = sc.build_motion(s, gloss_library_path)
+    hello, book = lib["HELLO"].poses, lib["BOOK"].poses
+    T = len(m["body_pose"])
+    n1, n2 = len(hello["body_pose"]), len(book["body_pose"])
+    assert T >= n1 + n2 + 4 * 2 + 4
+    # the first gloss is played as recorded after its start hold
+    np.testing.assert_allclose(m["body_pose"][2:2 + n1], hello["body_pose"], atol=1e-5)
+    np.testing.assert_allclose(m["body_pose"][:2], np.repeat(hello["body_pose"][:1], 2, 0),
+                               atol=1e-5)
+    np.testing.assert_allclose(m["right_hand_pose"][-2 - n2:-2], book["right_hand_pose"],
+                               atol=1e-5)
+    np.testing.assert_allclose(m["expression"][2:2 + n1], 0.5 * hello["expression"], atol=1e-5)
+    # no jumps: the largest frame-to-frame change is not larger than inside the clips
+    clip_step = max(np.abs(np.diff(c["body_pose"], axis=0)).max() for c in (hello, book))
+    assert np.abs(np.diff(m["body_pose"], axis=0)).max() <= clip_step + 0.05
+    np.testing.assert_array_equal(m["global_orient"], 0)
+    np.testing.assert_array_equal(m["transl"], 0)
+    np.testing.assert_allclose(m["betas"], [[0.3] + [0] * 9] * T)
+    with pytest.raises(sc.SceneError, match="NOPE"):
+        sc.build_motion(spec(motion={"glosses": ["HELLO", "NOPE"]}), gloss_library_path)
 
 
 def test_params_at_interpolates_between_frames():

@@ -17,15 +17,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def assets(tmp_path_factory):
-    from signsplat.body.proxy import write_proxy_model
-    from signsplat.synth.glosses import write_gloss_library
-
-    d = tmp_path_factory.mktemp("assets")
-    body, glosses = d / "body.npz", d / "glosses.parquet"
-    write_proxy_model(body, seed=0)
-    write_gloss_library(glosses, seed=0, fps=25.0)
-    return body, glosses
+def assets(proxy_body_path, gloss_library_path):
+    return proxy_body_path, gloss_library_path
 
 
 def tiny(**over):
