@@ -137,3 +137,22 @@ def test_fit_row_without_fit_eval_says_seconds_unknown(textured_rig):
     assert row["registered"] == 8 and row["rot_error_deg_max"] < 1e-6
     assert row["centre_error_m_max"] < 1e-9 and np.isnan(row["seconds"])
     assert "seconds unknown" in row["status"]
+
+
+def test_module_entry_point_runs_isolated_children(flat_rig, tmp_path):
+    """`python -m signsplat colmap-compare` (as the workflow calls it) with spawned children."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "t.parquet"
+    cfg = {"num_static_frames": 1, "sequence_frames": 0, "known_intrinsics": [True]}
+    proc = subprocess.run(
+        [sys.executable, "-m", "signsplat", "colmap-compare", "--frames",
+         str(flat_rig / "frames.parquet"), "--cameras", str(flat_rig / "cameras.parquet"),
+         "--out", str(out), "--config-json", json.dumps(cfg)],
+        capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    df = read_table(out, "colmap_compare")
+    assert len(df) == 1 and df["status"].iloc[0].startswith("failed")
+    assert "colmap_static_frame_0" in proc.stdout  # the table is printed at the end
+    assert "Elapsed time" in proc.stderr or "SIFT" in proc.stderr  # pycolmap's log is kept

@@ -85,3 +85,19 @@ def test_inline_run_matches_isolated_run(textured_rig):
     b, row_b, _ = _run(textured_rig, isolate=True)
     assert a.status == b.status == "ok"
     assert row_a["registered"] == row_b["registered"]
+
+
+class _DiesWhenUnpickled:
+    """Stands in for a C++ abort: the child process exits while loading its arguments."""
+
+    def __reduce__(self):
+        import os
+
+        return (os._exit, (3,))
+
+
+def test_a_dying_child_is_a_recorded_crash(textured_rig):
+    images, _ = _inputs(textured_rig)
+    result = run_colmap(images + [_DiesWhenUnpickled()], ColmapOptions(num_threads=1))
+    assert result.status.startswith("crashed") and "exit code 3" in result.status
+    assert result.registered == 0 and result.num_images == 9
