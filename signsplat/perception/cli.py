@@ -147,11 +147,15 @@ def train_detectors(argv: list[str]) -> int:
         jobs.append(TrainJob("keypoints", train_dirs, tcfg, str(out_dir / "keypoints.onnx"),
                              str(work / "logs" / "keypoints.log")))
     workers = max(1, min(len(jobs), threads))
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        summaries = list(pool.map(run_job, jobs))
+    if workers == 1:
+        summaries = [run_job(job) for job in jobs]
+    else:  # one process per model, each with its own torch threads
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            summaries = list(pool.map(run_job, jobs))
+    val = validate_on_held_out(sim_dirs[len(train_dirs):], out_dir, work / "val", cfg, threads)
     card = {"simulate_seconds": round(t_sim, 1), "train_scenes": len(train_dirs),
             "validation_scenes": [Path(d).parent.name for d in sim_dirs[len(train_dirs):]],
-            "models": summaries}
+            "validation": val, "models": summaries}
     from signsplat.io.atomic import write_bytes_atomic
 
     write_bytes_atomic(out_dir / "training.json", json.dumps(card, indent=2).encode())
@@ -184,3 +188,26 @@ def simulate_training_scenes(tcfg, body: str, glosses: str, scenes_dir: Path,
             spec_file.write_text(text)
         out.append(str(sim))
     return out
+
+
+def validate_on_held_out(sim_dirs: list[str], model_dir: Path, work: Path, cfg: dict,
+                         threads: int) -> list[dict]:
+    """Run both stages with the new models on held-out training scenes; accuracy rows."""
+    import dataclasses
+
+    from signsplat.perception.evaluate import accuracy
+    from signsplat.perception.stages import detect_sequence, segment_sequence
+
+    seg, kp = specs(cfg)
+    seg = dataclasses.replace(seg, path=str(model_dir / "segmenter.onnx"))
+    kp = dataclasses.replace(kp, path=str(model_dir / "keypoints.onnx"), input_size=None)
+    rows = []
+    for d in sim_dirs:
+        if not (model_dir / "segmenter.onnx").exists() or not (model_dir / "keypoints.onnx").exists():
+            break
+        out = work / Path(d).parent.name
+        segment_sequence(Path(d) / "frames.parquet", out, seg, threads, progress=False)
+        detect_sequence(Path(d) / "frames.parquet", out / "masks.parquet",
+                        out / "keypoints.parquet", kp, threads, progress=False)
+        rows += accuracy(d, out).to_dict("records")
+    return rows

@@ -36,9 +36,9 @@ SEG_STD = (127.5, 127.5, 127.5)
 class TrainConfig:
     """Training knobs of the default detectors (the config's ``perception.train`` section)."""
 
-    scenes: int = 16                 # training scenes to simulate
+    scenes: int = 24                 # training scenes to simulate
     seed: int = 0
-    frame_stride: int = 2            # use every n-th frame of each view
+    frame_stride: int = 1            # use every n-th frame of each view
     val_scenes: int = 1              # last scenes held out for the training report
     seg_steps: int = 600
     seg_batch: int = 12

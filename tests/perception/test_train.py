@@ -54,3 +54,26 @@ def test_tiny_training_runs_and_exports(tmp_path, scene_factory):
     assert kp.input_size == (64, 48) and kp.dynamic_batch
     sx, sy = kp.run(np.zeros((2, 3, 64, 48), np.float32))
     assert sx.min() >= 0 and sx.max() <= 1  # sigmoid inside the graph: scores are probabilities
+
+
+def test_train_detectors_command_on_given_scenes(tmp_path, scene_factory):
+    import json
+
+    from signsplat.perception.cli import train_detectors
+
+    dirs = [scene_factory(tmp_path, name=f"s{i}", views=1, frames=3, size=64, seed=i)
+            for i in range(3)]
+    cfg = {"threads": 1, "train": {"seg_steps": 3, "seg_batch": 2, "seg_crop": 32,
+                                   "seg_size": [64, 64], "kp_steps": 3, "kp_batch": 2,
+                                   "kp_input": [64, 48], "val_scenes": 1},
+           "segmenter": {"input_size": [64, 64]}}
+    out = tmp_path / "models"
+    assert train_detectors(["--work", str(tmp_path / "work"), "--out-dir", str(out),
+                            "--sim-dirs", *map(str, dirs), "--config-json",
+                            json.dumps(cfg)]) == 0
+    card = json.loads((out / "training.json").read_text())
+    assert card["train_scenes"] == 2 and card["validation_scenes"] == ["s2"]
+    assert {m["model"] for m in card["models"]} == {"segmenter", "keypoints"}
+    metrics = {(r["metric"], r["part"]) for r in card["validation"]}
+    assert ("mask_iou", "all") in metrics and ("pck@0.05", "right_hand") in metrics
+    assert (tmp_path / "work" / "logs" / "keypoints.log").read_text().count("step") >= 1
