@@ -119,15 +119,6 @@ def dense_mesh(prims: list[Prim], h: float = 0.002, block: int = 16,
     return verts, faces[ok]
 
 
-def decimate(verts: np.ndarray, faces: np.ndarray, target_vertices: int):
-    """Quadric decimation to about ``target_vertices`` (closed genus-0: F = 2V - 4)."""
-    import fast_simplification
-
-    v, f = fast_simplification.simplify(verts.astype(np.float64), faces.astype(np.int32),
-                                        target_count=2 * target_vertices - 4, agg=5.0)
-    return np.asarray(v, np.float64), np.asarray(f, np.int64)
-
-
 def clean_mesh(verts: np.ndarray, faces: np.ndarray):
     """Remove unreferenced vertices and duplicate faces; returns (verts, faces)."""
     used = np.unique(faces)
@@ -138,3 +129,52 @@ def clean_mesh(verts: np.ndarray, faces: np.ndarray):
     _, keep = np.unique(srt, axis=0, return_index=True)
     faces = faces[np.sort(keep)]
     return verts[used], faces
+
+
+def project_to_surface(prims: list[Prim], x: np.ndarray, iters: int = 3) -> np.ndarray:
+    """Move points onto the zero level of the body SDF (Newton steps along the gradient)."""
+    eps = 1e-5
+    x = x.copy()
+    for _ in range(iters):
+        f = body_sdf(prims, x)
+        g = np.stack([(body_sdf(prims, x + e) - body_sdf(prims, x - e)) / (2 * eps)
+                      for e in np.eye(3) * eps], axis=1)
+        g2 = np.maximum((g * g).sum(axis=1), 1e-8)
+        step = (f / g2)[:, None] * g
+        # never move by more than 2 mm in one step
+        n = np.linalg.norm(step, axis=1, keepdims=True)
+        x -= step * np.minimum(1.0, 0.002 / np.maximum(n, 1e-12))
+    return x
+
+
+def decimate_regions(verts: np.ndarray, faces: np.ndarray, face_region: np.ndarray,
+                     targets: dict[int, int], final_vertices: int):
+    """Decimate each region to its own vertex budget, then the whole mesh to ``final_vertices``.
+
+    face_region (F,) region id per face; targets: region id -> vertex count. Regions are
+    decimated with their borders kept, so they stitch back exactly; a last global pass removes
+    the dense border rings.
+    """
+    import fast_simplification
+
+    parts_v, parts_f = [], []
+    for reg, target in targets.items():
+        f = faces[face_region == reg]
+        used = np.unique(f)
+        remap = np.full(len(verts), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        v_sub, f_sub = verts[used], remap[f]
+        v2, f2 = fast_simplification.simplify(v_sub, f_sub.astype(np.int32),
+                                              target_count=max(2 * target, 4), agg=5.0,
+                                              preserve_border=True)
+        parts_v.append(np.asarray(v2, np.float64))
+        parts_f.append(np.asarray(f2, np.int64))
+    offs = np.cumsum([0] + [len(v) for v in parts_v])
+    V = np.concatenate(parts_v)
+    F = np.concatenate([f + o for f, o in zip(parts_f, offs[:-1])])
+    _, first, inv = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    V, F = V[first], inv.reshape(-1)[F]
+    V, F = clean_mesh(V, F)
+    v3, f3 = fast_simplification.simplify(V, F.astype(np.int32),
+                                          target_count=2 * final_vertices - 4, agg=5.0)
+    return clean_mesh(np.asarray(v3, np.float64), np.asarray(f3, np.int64))

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from signsplat.body import joints as JN
-from signsplat.body._proxy_mesh import clean_mesh, decimate, dense_mesh, prim_sdf
+from signsplat.body._proxy_mesh import (decimate_regions, dense_mesh, prim_sdf,
+                                        project_to_surface)
 from signsplat.body._proxy_rig import (EXPRESSION_NAMES, SHAPE_NAMES, expression_directions,
                                        hand_pca, joint_regressor, mirror_hand_pose,
                                        pose_correctives, shape_directions, skinning_weights)
@@ -129,8 +130,16 @@ def build_proxy_arrays(seed: int = 0, target_vertices: int = TARGET_VERTICES,
     prims = body_primitives()
     joints = rest_joints()
     verts, faces = dense_mesh(prims, h=spacing)
-    verts, faces = decimate(verts, faces, target_vertices)
-    verts, faces = clean_mesh(verts, faces)
+    # vertex budgets: hands and head get a larger share than their area (as in SMPL-X)
+    wrist_x = joints[JI["left_wrist"]][0]
+    vr = np.zeros(len(verts), dtype=np.int64)
+    vr[(verts[:, 1] > 1.50) & (np.abs(verts[:, 0]) < 0.15)] = 1
+    vr[verts[:, 0] > wrist_x - 0.01] = 2
+    vr[verts[:, 0] < -(wrist_x - 0.01)] = 3
+    budget = {0: int(0.535 * target_vertices), 1: int(0.22 * target_vertices),
+              2: int(0.145 * target_vertices), 3: int(0.145 * target_vertices)}
+    verts, faces = decimate_regions(verts, faces, vr[faces].max(axis=1), budget, target_vertices)
+    verts = project_to_surface(prims, verts)
     mesh = trimesh.Trimesh(verts, faces, process=False)
     if not mesh.is_watertight or not mesh.is_winding_consistent:
         raise RuntimeError("proxy mesh is not closed/consistently oriented after decimation")
