@@ -248,11 +248,10 @@ def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
 def load_signer(body_path: str | os.PathLike, appearance_seed: int = 0):
     """Body model, its :class:`SignerMesh` and the keypoint regressor.
 
-    Albedo per pixel comes from ``signsplat.body.appearance.albedo`` at canonical rest-pose
-    positions; without it, interpolated ``vertex_colors`` (grey when the file has none).
+    Albedo per pixel comes from ``signsplat.body.appearance.albedo`` at canonical (rest-pose
+    template) positions, with the features placed relative to the model's rest joints.
     """
-    import torch
-
+    from signsplat.body.appearance import albedo
     from signsplat.body.keypoints import WholeBodyRegressor
     from signsplat.body.model import BodyModel
 
@@ -261,35 +260,13 @@ def load_signer(body_path: str | os.PathLike, appearance_seed: int = 0):
     faces = model.faces.detach().cpu().numpy().astype(np.int64)
     canonical = model.v_template.detach().cpu().numpy().astype(np.float32)
     labels = model.part_labels.detach().cpu().numpy().astype(np.int64)
-    try:
-        from signsplat.body.appearance import albedo
-    except ImportError:
-        albedo = None
-    if albedo is not None:
-        def colorize(points, part_labels):
-            return np.asarray(albedo(points, part_labels, appearance_seed), np.float32)
-    else:
-        vc = getattr(model, "vertex_colors", None)
-        vc = (np.full((len(canonical), 3), 0.7, np.float32) if vc is None
-              else torch.as_tensor(vc).detach().cpu().numpy().astype(np.float32))
-        tree = _NearestVertex(canonical)
+    joints = model.rest_joints.detach().cpu().numpy().astype(np.float64)
 
-        def colorize(points, part_labels):
-            return vc[tree(points)]
+    def colorize(points, part_labels):
+        return np.asarray(albedo(points, part_labels, appearance_seed, joints=joints), np.float32)
+
     signer = SignerMesh(faces, canonical, labels, colorize)
     return model, signer, WholeBodyRegressor(model)
-
-
-class _NearestVertex:
-    """Index of the nearest canonical vertex of each query point (KD-tree)."""
-
-    def __init__(self, vertices: np.ndarray) -> None:
-        from scipy.spatial import cKDTree
-
-        self._tree = cKDTree(vertices)
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        return self._tree.query(points)[1]
 
 
 def _pose(model, params: Mapping[str, np.ndarray], regressor=None, chunk: int = 32):
