@@ -136,7 +136,8 @@ class BodyModel(nn.Module):
     Attributes: ``faces`` (F, 3) long, ``v_template`` (V, 3), ``parents`` (55,) long,
     ``lbs_weights`` (V, 55), ``part_labels`` (V,) long, ``vertex_colors`` (V, 3) or None,
     ``rest_joints`` (55, 3) joints of the template, ``num_betas``, ``num_expression``,
-    ``hand_mean`` ('flat' or 'mano'), ``kp_vertex_ids`` (dict name -> vertex) or None.
+    ``hand_mean`` ('flat' or 'mano'), ``kp_surface_points`` (name -> (3 vertex ids, 3
+    barycentric weights), from the file's ``kp_*`` keys) or None.
     """
 
     def __init__(self, arrays: dict[str, np.ndarray], num_betas: int = 10,
@@ -195,10 +196,18 @@ class BodyModel(nn.Module):
         else:
             self.register_buffer("dynamic_lmk_faces_idx", None)
             self.register_buffer("dynamic_lmk_bary_coords", None)
-        self.kp_vertex_ids: dict[str, int] | None = None
-        if "kp_vertex_names" in arrays and "kp_vertex_ids" in arrays:
-            self.kp_vertex_ids = {str(n): int(i) for n, i in
-                                  zip(arrays["kp_vertex_names"], arrays["kp_vertex_ids"])}
+        # named surface points for keypoints: name -> (3 vertex ids, 3 weights)
+        self.kp_surface_points: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+        faces_np = np.asarray(arrays["f"], dtype=np.int64)
+        if {"kp_names", "kp_faces_idx", "kp_bary_coords"} <= arrays.keys():
+            self.kp_surface_points = {
+                str(n): (faces_np[int(fi)], np.asarray(b, np.float64))
+                for n, fi, b in zip(arrays["kp_names"], arrays["kp_faces_idx"],
+                                    arrays["kp_bary_coords"])}
+        elif {"kp_vertex_names", "kp_vertex_ids"} <= arrays.keys():
+            self.kp_surface_points = {
+                str(n): (np.array([int(i)] * 3), np.array([1.0, 0.0, 0.0]))
+                for n, i in zip(arrays["kp_vertex_names"], arrays["kp_vertex_ids"])}
         self.register_buffer("rest_joints", self.J_regressor @ self.v_template)
 
     @classmethod

@@ -26,7 +26,8 @@ extra keys ``num_shape_dirs`` / ``num_expression_dirs`` (scalars).
 
 Optional arrays kept when present: ``dynamic_lmk_faces_idx`` (79, 17),
 ``dynamic_lmk_bary_coords`` (79, 17, 3), ``joint2num``, ``part2num``, ``vt``, ``ft``, and our
-extras ``part_labels`` (V,), ``vertex_colors`` (V, 3), ``kp_vertex_names`` / ``kp_vertex_ids``
+extras ``part_labels`` (V,), ``vertex_colors`` (V, 3), ``kp_names`` / ``kp_faces_idx`` /
+``kp_bary_coords`` or ``kp_vertex_names`` / ``kp_vertex_ids``
 (named keypoint vertices for the whole-body regressor).
 """
 

@@ -65,55 +65,46 @@ def _contour_landmark_xy() -> np.ndarray:
 
 def _project_front(mesh, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Faces and barycentrics where rays from z=+1 along -z first hit the mesh."""
+    origins = np.column_stack([xy, np.full(len(xy), 1.0)])
+    return _cast(mesh, origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)), "face landmarks")
+
+
+def _keypoint_rays(joints: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Rays (origin, direction) whose first hit on the proxy is each named keypoint; names as
+    smplx's ``vertex_ids['smplx']`` (design coordinates)."""
+    rays = {"nose": ((0.0, 1.590, 1.0), (0.0, 0.0, -1.0))}
+    tips = fingertips()
+    for s, side, long in ((1, "l", "left"), (-1, "r", "right")):
+        eye = joints[JI[f"{long}_eye"]]
+        rays[f"{side}eye"] = ((eye[0], eye[1], 1.0), (0.0, 0.0, -1.0))
+        rays[f"{side}ear"] = ((s * 1.0, 1.625, -0.010), (-s * 1.0, 0.0, 0.0))
+        for finger in FINGER_NAMES:
+            d, tip = finger_direction(finger), tips[finger]
+            if s < 0:
+                d, tip = mirror(d), mirror(tip)
+            rays[f"{side}{finger}"] = (tip + 0.05 * d, -d)
+        ankle, foot = joints[JI[f"{long}_ankle"]], joints[JI[f"{long}_foot"]]
+        up = "L" if s > 0 else "R"
+        rays[f"{up}BigToe"] = ((foot[0] - s * 0.012, 0.022, 1.0), (0.0, 0.0, -1.0))
+        rays[f"{up}SmallToe"] = ((foot[0] + s * 0.022, 0.020, 1.0), (0.0, 0.0, -1.0))
+        rays[f"{up}Heel"] = ((ankle[0], 0.028, -1.0), (0.0, 0.0, 1.0))
+    return {k: (np.asarray(o, float), np.asarray(d, float) / np.linalg.norm(d))
+            for k, (o, d) in rays.items()}
+
+
+def _cast(mesh, origins: np.ndarray, dirs: np.ndarray, what: str):
+    """First hits of rays on the mesh -> (faces (N,), barycentrics (N, 3))."""
     import trimesh
 
-    origins = np.column_stack([xy, np.full(len(xy), 1.0)])
-    dirs = np.tile([0.0, 0.0, -1.0], (len(xy), 1))
     loc, ray, tri = mesh.ray.intersects_location(origins, dirs, multiple_hits=False)
-    if len(ray) != len(xy):
-        missing = sorted(set(range(len(xy))) - set(ray.tolist()))
-        raise RuntimeError(f"landmark rays {missing} missed the proxy face")
+    if len(ray) != len(origins):
+        missing = sorted(set(range(len(origins))) - set(ray.tolist()))
+        raise RuntimeError(f"{what}: rays {missing} missed the proxy surface")
     order = np.argsort(ray)
     loc, tri = loc[order], tri[order]
     bary = trimesh.triangles.points_to_barycentric(mesh.triangles[tri], loc)
     bary = np.clip(bary, 0.0, 1.0)
-    bary /= bary.sum(axis=1, keepdims=True)
-    return tri.astype(np.int64), bary
-
-
-def _keypoint_vertices(verts: np.ndarray, owner: np.ndarray, joints: np.ndarray) -> dict:
-    """Named keypoint vertices with the names of smplx's ``vertex_ids['smplx']``."""
-    def nearest(p, mask=None):
-        d = np.linalg.norm(verts - np.asarray(p), axis=1)
-        if mask is not None:
-            d = np.where(mask, d, np.inf)
-        return int(np.argmin(d))
-
-    out = {"nose": nearest((0.0, 1.588, 0.2))}
-    for s, side in ((1, "l"), (-1, "r")):
-        eye = joints[JI[f"{'left' if s > 0 else 'right'}_eye"]]
-        out[f"{side}eye"] = nearest(eye + (0.0, 0.0, 0.0125))
-        out[f"{side}ear"] = nearest((s * 0.09, 1.625, -0.01))
-        tips = fingertips()
-        for finger in FINGER_NAMES:
-            name = f"{'left' if s > 0 else 'right'}_{finger}3"
-            d = finger_direction(finger)
-            tip = tips[finger]
-            if s < 0:
-                d, tip = mirror(d), mirror(tip)
-            sel = owner == JI[name]
-            score = np.where(sel, verts @ d, -np.inf)
-            out[f"{side}{finger}"] = int(np.argmax(score))
-        ankle = joints[JI[f"{'left' if s > 0 else 'right'}_ankle"]]
-        foot = joints[JI[f"{'left' if s > 0 else 'right'}_foot"]]
-        big = "LBigToe" if s > 0 else "RBigToe"
-        small = "LSmallToe" if s > 0 else "RSmallToe"
-        heel = "LHeel" if s > 0 else "RHeel"
-        low = verts[:, 1] < 0.12
-        out[big] = nearest((foot[0] - s * 0.015, 0.02, foot[2] + 0.12), low)
-        out[small] = nearest((foot[0] + s * 0.035, 0.015, foot[2] + 0.08), low)
-        out[heel] = nearest((ankle[0], 0.01, ankle[2] - 0.08), low)
-    return out
+    return tri.astype(np.int64), bary / bary.sum(axis=1, keepdims=True)
 
 
 def build_proxy_arrays(seed: int = 0, target_vertices: int = TARGET_VERTICES,
@@ -168,7 +159,9 @@ def build_proxy_arrays(seed: int = 0, target_vertices: int = TARGET_VERTICES,
     xy_contour = _contour_landmark_xy() + (0.0, dy)
     lmk_faces, lmk_bary = _project_front(mesh, xy_static)
     c_faces, c_bary = _project_front(mesh, xy_contour)
-    kp = _keypoint_vertices(verts - (0.0, dy, 0.0), owner, joints - (0.0, dy, 0.0))
+    rays = _keypoint_rays(joints - (0.0, dy, 0.0))
+    kp_faces, kp_bary = _cast(mesh, np.array([o for o, _ in rays.values()]) + (0.0, dy, 0.0),
+                              np.array([d for _, d in rays.values()]), "keypoints")
 
     comps_l, mean_l = hand_pca(seed)
     comps_r, mean_r = mirror_hand_pose(comps_l), mirror_hand_pose(mean_l)
@@ -194,8 +187,9 @@ def build_proxy_arrays(seed: int = 0, target_vertices: int = TARGET_VERTICES,
         "shape_names": np.array(SHAPE_NAMES), "expression_names": np.array(EXPRESSION_NAMES),
         "part_labels": labels.astype(np.int64),
         "vertex_colors": colors.astype(np.float32),
-        "kp_vertex_names": np.array(list(kp.keys())),
-        "kp_vertex_ids": np.array(list(kp.values()), dtype=np.int64),
+        "kp_names": np.array(list(rays.keys())),
+        "kp_faces_idx": kp_faces,
+        "kp_bary_coords": kp_bary,
         "proxy_seed": np.array(seed),
     }
 
