@@ -1,0 +1,346 @@
+"""Training of the avatar (paper 4.1): Adam over Gaussians, networks and (optionally) SMPL-X.
+
+One optimiser step sums the losses of ``accumulate_poses`` (frame, camera) renders (the paper's
+loss accumulation; off = one render per step). Each render's loss is L1 + D-SSIM (+ LPIPS when
+available) against the ground truth with its background replaced by the training background,
+plus an extra L1 on the hand crops, plus the regularisation terms. Density control is a
+:class:`~signsplat.avatar.strategy.MeshDensifyStrategy` called around the backward pass.
+
+Checkpoints hold everything needed to continue bit-for-bit on the CPU (model with its current
+point count, optimiser moments, strategy statistics and random state, the frame sampler, the
+SMPL-X parameters, elapsed time and the log) and are written atomically.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+import torch
+from torch import nn
+
+from signsplat.avatar.config import AvatarConfig, to_dict
+from signsplat.avatar.data import SMPLX_BLOCKS, SceneData, split_frames, target
+from signsplat.avatar.losses import image_loss, load_lpips, psnr
+from signsplat.avatar.model import POINT_PARAMS, AvatarModel, sh_degree_at
+from signsplat.avatar.regions import part_box
+from signsplat.avatar.regularize import Regularizer, displacement_terms
+from signsplat.avatar.strategy import MeshDensifyStrategy
+from signsplat.avatar.upsample import upsample_mesh
+from signsplat.io.atomic import atomic_path
+from signsplat.io.tables import Table, register_table
+
+log = logging.getLogger(__name__)
+
+TRAIN_LOG = register_table(Table(
+    "avatar_train_log",
+    "Avatar training log: one row per logged optimiser step.",
+    {
+        "step": "int64 optimiser step (1-based)",
+        "seconds": "float64 wall-clock training seconds so far (checkpoint I/O excluded)",
+        "loss": "float64 total loss of the step (mean over its poses)",
+        "psnr": "float64 PSNR (dB) of the step's renders against their masked targets",
+        "num_points": "int64 Gaussians after the step",
+        "sh_degree": "int64 SH degree in use",
+    },
+    extra_columns=True,  # one column per loss term (l1, dssim, hand, reg_*)
+))
+
+RasterizeFn = Callable[..., tuple[torch.Tensor, torch.Tensor, dict]]
+
+
+def default_rasterizer() -> RasterizeFn:
+    from signsplat.render import rasterization
+
+    return rasterization
+
+
+def canonical_template(body, betas: torch.Tensor) -> torch.Tensor:
+    """(V, 3) rest-pose vertices of the body with ``betas`` (1, k)."""
+    with torch.no_grad():
+        return body(betas=betas).v_shaped[0]
+
+
+def build_model(body, betas: torch.Tensor, cfg: AvatarConfig) -> AvatarModel:
+    """Upsample the canonical mesh of ``body`` (shape ``betas``) and build the avatar."""
+    template = canonical_template(body, betas)
+    points = upsample_mesh(template, body.faces, body.part_labels, cfg.upsample.edge_length,
+                           cfg.upsample.face_area) if cfg.upsample.max_rounds else \
+        upsample_mesh(template, body.faces, body.part_labels, float("inf"), float("inf"))
+    return AvatarModel(points, body.faces, body.lbs_weights, template, cfg.model)
+
+
+class SmplxParams(nn.Module):
+    """Per-frame SMPL-X blocks (F, k); ``betas`` shared over the sequence (first frame's)."""
+
+    def __init__(self, params: dict[str, torch.Tensor], learnable: bool):
+        super().__init__()
+        self.learnable = learnable
+        for name in SMPLX_BLOCKS:
+            if name not in params:
+                continue
+            value = params[name].float().clone()
+            if name == "betas":
+                value = value[:1]
+            if learnable:
+                setattr(self, name, nn.Parameter(value))
+            else:
+                self.register_buffer(name, value)
+        self.names = [n for n in SMPLX_BLOCKS if n in params]
+
+    def get(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = {}
+        for name in self.names:
+            t = getattr(self, name)
+            out[name] = t.expand(len(idx), -1) if name == "betas" else t[idx]
+        return out
+
+
+def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, Ks: torch.Tensor,
+                     width: int, height: int, background: torch.Tensor,
+                     backend: str) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Render frame ``b`` of posed Gaussians ``g`` from C cameras -> (C,H,W,3), (C,H,W,1), meta."""
+    c = viewmats.shape[0]
+    colors, alphas, meta = rasterize(
+        means=g.means[b], quats=g.quats[b], scales=g.scales[b], opacities=g.opacities[b],
+        colors=g.colors[b], viewmats=viewmats, Ks=Ks, width=width, height=height,
+        sh_degree=g.sh_degree, backgrounds=background[None].expand(c, -1), backend=backend,
+    )
+    meta.setdefault("width", width)
+    meta.setdefault("height", height)
+    return colors, alphas, meta
+
+
+@dataclass
+class Split:
+    train_frames: np.ndarray  # indices into data.frames
+    test_frames: np.ndarray
+    train_views: np.ndarray  # indices into data.views
+    test_views: np.ndarray
+
+
+def make_split(data: SceneData, cfg: AvatarConfig) -> Split:
+    tr, te = split_frames(data.frames, cfg.train.test_interval, cfg.train.test_offset)
+    pos = {int(f): i for i, f in enumerate(data.frames)}
+    held = set(cfg.train.test_views)
+    tv = np.array([i for i, v in enumerate(data.views) if int(v) not in held], dtype=np.int64)
+    hv = np.array([i for i, v in enumerate(data.views) if int(v) in held], dtype=np.int64)
+    if len(tr) == 0 or len(tv) == 0:
+        raise ValueError("no training frames or views left after the split")
+    return Split(np.array([pos[int(f)] for f in tr]), np.array([pos[int(f)] for f in te]), tv, hv)
+
+
+class AvatarTrainer:
+    """Trains one avatar on one scene. ``body`` is a ``signsplat.body.BodyModel``."""
+
+    def __init__(self, body, data: SceneData, cfg: AvatarConfig,
+                 device: torch.device | str = "cpu", rasterize: RasterizeFn | None = None):
+        self.cfg = cfg
+        self.device = torch.device(device)
+        torch.manual_seed(cfg.train.seed)
+        self.body = body.to(self.device)
+        self.data = data
+        self.split = make_split(data, cfg)
+        self.rasterize = rasterize or default_rasterizer()
+        self.background = torch.tensor(cfg.train.background, dtype=torch.float32,
+                                       device=self.device)
+        self.smplx = SmplxParams(data.smplx, cfg.train.finetune_smplx).to(self.device)
+        self.model = build_model(self.body, self.smplx.betas.detach(), cfg).to(self.device)
+        self.strategy = MeshDensifyStrategy.from_config(cfg.strategy)
+        self.strategy_state = self.strategy.initialize_state()
+        self.regularizer = Regularizer(cfg.regularize)
+        self.lpips = load_lpips(cfg.loss.lpips_weights)
+        self.sampler = torch.Generator().manual_seed(cfg.train.seed)
+        self.step = 0
+        self.seconds = 0.0
+        self.log_rows: list[dict[str, Any]] = []
+        self.optimizer = self._make_optimizer()
+        self.viewmats = data.viewmats.to(self.device)
+        self.Ks = data.Ks.to(self.device)
+
+    # ------------------------------------------------------------------ setup
+    def _make_optimizer(self) -> torch.optim.Adam:
+        t = self.cfg.train
+        lrs = {"scale_raw": t.lr_scale, "quat": t.lr_rotation, "opacity_raw": t.lr_opacity,
+               "sh_dc": t.lr_color, "sh_rest": t.lr_sh_rest, "bary_logits": t.lr_means,
+               "normal_offset": t.lr_means}
+        groups = [{"params": [getattr(self.model, n)], "lr": lrs[n], "name": n}
+                  for n in POINT_PARAMS]
+        nets = [p for n, p in self.model.named_parameters() if n not in POINT_PARAMS]
+        if nets:
+            groups.append({"params": nets, "lr": t.lr_network, "name": "networks"})
+        if self.smplx.learnable:
+            groups.append({"params": list(self.smplx.parameters()), "lr": t.lr_smplx,
+                           "name": "smplx"})
+        return torch.optim.Adam(groups, eps=1e-15)
+
+    @property
+    def poses_per_step(self) -> int:
+        return self.cfg.train.accumulate_poses if self.cfg.train.accumulate else 1
+
+    # ------------------------------------------------------------------ forward
+    def pose(self, frame_idx: torch.Tensor, sh_degree: int, smplx: dict | None = None):
+        """Body output and posed Gaussians for frames ``frame_idx`` (indices into data.frames)."""
+        params = smplx if smplx is not None else self.smplx.get(frame_idx.to(self.device))
+        out = self.body(**params)
+        g = self.model(out.v_shaped, out.vertices, out.transforms, params.get("transl"),
+                       sh_degree)
+        return out, g
+
+    def render_view(self, g, view_i: int):
+        return render_gaussians(self.rasterize, g, 0, self.viewmats[view_i:view_i + 1],
+                                self.Ks[view_i:view_i + 1], self.data.width, self.data.height,
+                                self.background, self.cfg.train.render_backend)
+
+    def _sample(self) -> list[tuple[int, int]]:
+        tf, tv = self.split.train_frames, self.split.train_views
+        n = self.poses_per_step
+        fi = torch.randperm(len(tf), generator=self.sampler)[:n]
+        if len(fi) < n:  # fewer training frames than poses per step
+            fi = torch.randint(len(tf), (n,), generator=self.sampler)
+        vi = torch.randint(len(tv), (n,), generator=self.sampler)
+        return [(int(tf[f]), int(tv[v])) for f, v in zip(fi, vi)]
+
+    def pose_loss(self, frame_i: int, view_i: int, sh_degree: int,
+                  with_reg: bool) -> tuple[torch.Tensor, dict[str, float], float, dict]:
+        """Loss of one render; returns (loss, terms, psnr, meta)."""
+        out, g = self.pose(torch.tensor([frame_i]), sh_degree)
+        colors, _, meta = self.render_view(g, view_i)
+        self.strategy.step_pre_backward(meta) if self.cfg.strategy.enabled else None
+        render = colors[0].permute(2, 0, 1)[None].clamp(0, 1)
+        gt, _ = target(self.data, view_i, frame_i, self.background.cpu())
+        gt = gt.to(self.device)[None]
+        c = self.cfg.loss
+        terms = image_loss(render, gt, c.w_l1, c.w_dssim, c.ssim_window, self.lpips, c.w_lpips)
+        if c.w_hand > 0:
+            hand = []
+            for part in ("left_hand", "right_hand"):
+                box = part_box(out.joints[0], part, self.viewmats[view_i], self.Ks[view_i],
+                               self.data.width, self.data.height, self.cfg.eval.crop_size.hands)
+                if box is not None:
+                    x0, y0, x1, y1 = box
+                    hand.append((render[..., y0:y1, x0:x1] - gt[..., y0:y1, x0:x1]).abs().mean())
+            if hand:
+                terms["hand"] = c.w_hand * torch.stack(hand).mean()
+        if with_reg:
+            terms.update(self.regularizer(self.model, g))
+            terms.update(displacement_terms(self.model, g, self.cfg.regularize))
+        loss = sum(terms.values())
+        with torch.no_grad():
+            p = float(psnr(render, gt)[0])
+        return loss, {k: float(v.detach()) for k, v in terms.items()}, p, meta
+
+    # ------------------------------------------------------------------ step
+    def train_step(self) -> dict[str, float]:
+        """One optimiser step over ``poses_per_step`` renders."""
+        t0 = time.perf_counter()
+        self.step += 1
+        sh = sh_degree_at(self.step, self.cfg.train.iterations, self.cfg.model.sh_degree,
+                          self.cfg.sh_schedule.rise_at)
+        self.optimizer.zero_grad(set_to_none=True)
+        metas, total, terms_sum, psnrs = [], 0.0, {}, []
+        pairs = self._sample()
+        for k, (fi, vi) in enumerate(pairs):
+            loss, terms, p, meta = self.pose_loss(fi, vi, sh, with_reg=(k == 0))
+            (loss / len(pairs)).backward()
+            metas.append(meta)
+            total += float(loss.detach()) / len(pairs)
+            psnrs.append(p)
+            for name, v in terms.items():
+                terms_sum[name] = terms_sum.get(name, 0.0) + v / len(pairs)
+        self.optimizer.step()
+        stats = {"added": 0, "pruned": 0}
+        if self.cfg.strategy.enabled:
+            stats = self.strategy.step_post_backward(self.model, self.optimizer,
+                                                     self.strategy_state, self.step, metas)
+        self.seconds += time.perf_counter() - t0
+        row = {"step": self.step, "seconds": self.seconds, "loss": total,
+               "psnr": float(np.mean(psnrs)), "num_points": self.model.num_points,
+               "sh_degree": sh, **terms_sum, **stats}
+        if self.step % self.cfg.train.log_every == 0 or self.step == 1:
+            self.log_rows.append(row)
+        return row
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "format": "signsplat-avatar-1",
+            "step": self.step,
+            "seconds": self.seconds,
+            "config": to_dict(self.cfg),
+            "model": self.model.state_dict(),
+            "smplx": self.smplx.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "strategy": self.strategy_state,
+            "sampler": self.sampler.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "log": list(self.log_rows),
+            "scene": self.data.scene,
+            "frames": self.data.frames.tolist(),
+            "split": {k: getattr(self.split, k).tolist() for k in self.split.__dataclass_fields__},
+        }
+
+    def save_checkpoint(self, path: str | os.PathLike) -> Path:
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            torch.save(self.state_dict(), tmp)
+        return path
+
+    def load_checkpoint(self, path: str | os.PathLike) -> None:
+        state = torch.load(path, map_location=self.device, weights_only=False)
+        self.model.resize_like(state["model"])
+        self.model.load_state_dict(state["model"])
+        self.smplx.load_state_dict(state["smplx"])
+        self.optimizer = self._make_optimizer()
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.strategy_state = state["strategy"]
+        self.sampler.set_state(state["sampler"])
+        torch.set_rng_state(state["torch_rng"])
+        self.step = int(state["step"])
+        self.seconds = float(state["seconds"])
+        self.log_rows = list(state["log"])
+
+    # ------------------------------------------------------------------ run
+    def run(self, iterations: int | None = None, checkpoint: str | os.PathLike | None = None,
+            progress: bool = True) -> pd.DataFrame:
+        """Train up to ``iterations`` steps in total (resuming from ``self.step``); write a
+        checkpoint every ``checkpoint_every`` steps and at the end. Returns the log."""
+        from tqdm import tqdm
+
+        total = self.cfg.train.iterations if iterations is None else iterations
+        bar = tqdm(total=total, initial=self.step, disable=not progress, desc="avatar",
+                   mininterval=2.0)
+        while self.step < total:
+            row = self.train_step()
+            bar.update(1)
+            bar.set_postfix(loss=f"{row['loss']:.4f}", psnr=f"{row['psnr']:.2f}",
+                            n=row["num_points"], refresh=False)
+            if checkpoint and self.step % self.cfg.train.checkpoint_every == 0:
+                self.save_checkpoint(checkpoint)
+        bar.close()
+        if checkpoint:
+            self.save_checkpoint(checkpoint)
+        return pd.DataFrame(self.log_rows)
+
+
+def load_avatar(path: str | os.PathLike, body, device: torch.device | str = "cpu"):
+    """(model, smplx params module, checkpoint dict) of a saved checkpoint, ready to render."""
+    from signsplat.avatar.config import avatar_config
+
+    state = torch.load(path, map_location=device, weights_only=False)
+    cfg = avatar_config(state["config"])
+    smplx_state = state["smplx"]
+    learnable = cfg.train.finetune_smplx
+    params = {k: v for k, v in smplx_state.items()}
+    smplx = SmplxParams(params, learnable).to(device)
+    smplx.load_state_dict(smplx_state)
+    model = build_model(body.to(device), smplx.betas.detach(), cfg).to(device)
+    model.resize_like(state["model"])
+    model.load_state_dict(state["model"])
+    return model, smplx, state, cfg
