@@ -71,7 +71,7 @@ def colmap_compare(argv: list[str]) -> int:
         work_root=args.work_dir,
     )
     write_table(table, out, "colmap_compare", metadata={
-        "config": json.dumps(cfg.__dict__, default=list),
+        "config": json.dumps(cfg.describe()),
         "pixel_convention": "opencv (pixel centres at integer coordinates)",
     })
     best = Path(args.ply) if args.ply else out.parent / "points.ply"

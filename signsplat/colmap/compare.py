@@ -4,7 +4,8 @@ Runs (paper 3.1: COLMAP struggles on static sparse rigs, hence the body-model an
 - ``colmap_static_frame_{k}``: the C views of time step k (one static sparse rig snapshot);
 - ``colmap_sequence``: all views x an even subsample of frames;
 - ``smplx_camera_solve``: the fitting stage's cameras (``cameras_fit.parquet``), when present.
-each with ``setting`` known_intrinsics / estimated_intrinsics for the COLMAP runs. Camera
+each COLMAP run under every configured ``setting`` (by default: known intrinsics, estimated
+intrinsics, and known intrinsics with relaxed mapper thresholds). Camera
 errors are measured after a similarity alignment to the ground-truth cameras
 (:mod:`signsplat.colmap.align`), the same way for every method.
 """
@@ -33,10 +34,12 @@ COLMAP_COMPARE = register_table(Table(
     {
         "scene": "str sequence name",
         "method": "str colmap_static_frame_{k} | colmap_sequence | smplx_camera_solve",
-        "setting": "str known_intrinsics | estimated_intrinsics (COLMAP); fit mode (SMPL-X)",
+        "setting": "str name of the COLMAP setting (e.g. known_intrinsics, estimated_intrinsics, "
+                   "known_intrinsics_relaxed); fit mode + keypoint source for the SMPL-X solve",
         "frame": "int32 time step of a static-rig run, -1 when the run spans all frames",
         "images": "int32 input images (views x frames)",
         "registered": "int32 images with a recovered pose (cameras for the SMPL-X solve)",
+        "views_registered": "int32 distinct cameras (views) among the registered images",
         "points3d": "Int64 reconstructed 3D points (null for the SMPL-X solve)",
         "reproj_error_px": "float64 mean reprojection error in pixels (NaN when unknown)",
         "rot_error_deg": "float64 mean camera rotation error after similarity alignment, degrees",
@@ -51,7 +54,41 @@ COLMAP_COMPARE = register_table(Table(
     },
 ))
 
-SETTINGS = {True: "known_intrinsics", False: "estimated_intrinsics"}
+#: ColmapOptions fields a setting may override (the config's top-level values are the base).
+MAPPER_KEYS = ("max_num_features", "min_num_matches", "init_min_num_inliers",
+               "init_min_tri_angle", "abs_pose_min_num_inliers", "abs_pose_min_inlier_ratio",
+               "min_model_size")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A named way to run COLMAP: fixed or estimated intrinsics, and mapper threshold overrides."""
+
+    name: str
+    known_intrinsics: bool = True
+    overrides: tuple[tuple[str, float], ...] = ()
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Setting":
+        d = dict(d)
+        name, known = str(d.pop("name")), bool(d.pop("known_intrinsics", True))
+        bad = sorted(set(d) - set(MAPPER_KEYS))
+        if bad:
+            raise InputError(f"colmap setting {name!r}: unknown key(s) {bad}; "
+                             f"allowed {list(MAPPER_KEYS)}")
+        return cls(name, known, tuple(sorted(d.items())))
+
+
+#: COLMAP's defaults with and without the true intrinsics, and a relaxed mapper (smaller initial
+#: pair and registration thresholds, small models kept) to show failures are not a tuning issue.
+DEFAULT_SETTINGS = (
+    Setting("known_intrinsics", True),
+    Setting("estimated_intrinsics", False),
+    Setting("known_intrinsics_relaxed", True, (
+        ("abs_pose_min_inlier_ratio", 0.1), ("abs_pose_min_num_inliers", 15),
+        ("init_min_num_inliers", 15), ("init_min_tri_angle", 4.0), ("min_model_size", 3),
+        ("min_num_matches", 10))),
+)
 
 
 @dataclass(frozen=True)
@@ -61,11 +98,14 @@ class CompareConfig:
     static_frames: tuple[int, ...] | None = None
     num_static_frames: int = 3
     sequence_frames: int = 8
-    known_intrinsics: tuple[bool, ...] = (True, False)
+    settings: tuple[Setting, ...] = DEFAULT_SETTINGS
     max_num_features: int = 4096
     min_num_matches: int = 15
     init_min_num_inliers: int = 100
     init_min_tri_angle: float = 16.0
+    abs_pose_min_num_inliers: int = 30
+    abs_pose_min_inlier_ratio: float = 0.25
+    min_model_size: int = 10
     seed: int = 0
     isolate: bool = True
     timeout_seconds: float = 1800.0
@@ -80,18 +120,29 @@ class CompareConfig:
             raise InputError(f"colmap config: unknown key(s) {unknown}; known {sorted(known)}")
         if cfg.get("static_frames") is not None:
             cfg["static_frames"] = tuple(int(f) for f in cfg["static_frames"])
-        if "known_intrinsics" in cfg:
-            cfg["known_intrinsics"] = tuple(bool(k) for k in cfg["known_intrinsics"])
+        if "settings" in cfg:
+            cfg["settings"] = tuple(Setting.from_dict(d) for d in cfg["settings"])
+            names = [st.name for st in cfg["settings"]]
+            if len(set(names)) != len(names):
+                raise InputError(f"colmap config: setting names must be unique, got {names}")
         return cls(**cfg)
 
-    def options(self, known_intrinsics: bool, threads: int) -> ColmapOptions:
+    def options(self, setting: Setting, threads: int) -> ColmapOptions:
+        """The options of one run: the base thresholds, then the setting's overrides."""
+        base = {k: getattr(self, k) for k in MAPPER_KEYS}
+        base.update(dict(setting.overrides))
         return ColmapOptions(
-            known_intrinsics=known_intrinsics, max_num_features=self.max_num_features,
-            min_num_matches=self.min_num_matches, init_min_num_inliers=self.init_min_num_inliers,
-            init_min_tri_angle=self.init_min_tri_angle, num_threads=threads, seed=self.seed,
+            known_intrinsics=setting.known_intrinsics, num_threads=threads, seed=self.seed,
             max_runtime_seconds=self.max_runtime_seconds, isolate=self.isolate,
-            timeout_seconds=self.timeout_seconds,
+            timeout_seconds=self.timeout_seconds, **base,
         )
+
+    def describe(self) -> dict:
+        """Plain-data copy (for table metadata)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["settings"] = [{"name": st.name, "known_intrinsics": st.known_intrinsics,
+                          **dict(st.overrides)} for st in self.settings]
+        return d
 
 
 @dataclass(frozen=True)
@@ -186,8 +237,9 @@ def camera_error_columns(R_est, t_est, R_gt, t_gt) -> tuple[dict, object]:
                 focal_error_pct=np.nan, alignment=al.method), al
 
 
-def colmap_row(scene: str, spec: RunSpec, setting: str, images: list[ImageInput],
-               result: ColmapResult, gt: GroundTruth) -> tuple[dict, object]:
+def colmap_row(scene: str, spec: RunSpec, setting: str, known_intrinsics: bool,
+               images: list[ImageInput], result: ColmapResult,
+               gt: GroundTruth) -> tuple[dict, object]:
     """A table row for one COLMAP run and the alignment (None when it could not be made)."""
     by_name = {im.name: im for im in images}
     R_e, t_e, R_g, t_g, focal = [], [], [], [], []
@@ -199,10 +251,11 @@ def colmap_row(scene: str, spec: RunSpec, setting: str, images: list[ImageInput]
         focal.append(abs(fx - im.K[0, 0]) / im.K[0, 0] * 100.0)
     ok = result.registered >= 2 and result.status == "ok"
     errors, al = camera_error_columns(R_e, t_e, R_g, t_g) if ok else (_nan_row(), None)
-    if ok and setting == SETTINGS[False] and focal:
+    if ok and not known_intrinsics and focal:
         errors["focal_error_pct"] = float(np.mean(focal))
     row = dict(scene=scene, method=spec.method, setting=setting, frame=spec.frame,
                images=len(images), registered=result.registered,
+               views_registered=len({by_name[n].view for n in result.poses}),
                points3d=int(len(result.points)),
                reproj_error_px=float(result.reproj_error_px) if ok else np.nan,
                **errors, seconds=float(result.seconds), status=result.status, ply="")
@@ -243,7 +296,8 @@ def fit_rows(scene: str, fit_cameras: pd.DataFrame, gt: GroundTruth,
     attrs = fit_cameras.attrs
     setting = "_".join(str(attrs[k]) for k in ("mode", "keypoints") if attrs.get(k)) or "fit"
     return [dict(scene=scene, method="smplx_camera_solve", setting=setting, frame=-1,
-                 images=int(len(fit_cameras)), registered=len(R_e), points3d=None,
+                 images=int(len(fit_cameras)), registered=len(R_e), views_registered=len(R_e),
+                 points3d=None,
                  reproj_error_px=reproj, **errors, seconds=seconds, status=status, ply="")]
 
 
@@ -272,6 +326,7 @@ def to_frame(rows: list[dict]) -> pd.DataFrame:
     """Rows -> the typed ``colmap_compare`` DataFrame (columns in the table's order)."""
     df = pd.DataFrame(rows, columns=list(COLMAP_COMPARE.columns))
     return df.astype({"frame": "int32", "images": "int32", "registered": "int32",
+                      "views_registered": "int32",
                       "points3d": "Int64", "seconds": "float64", "reproj_error_px": "float64"})
 
 
@@ -292,11 +347,11 @@ def compare_scene(frames: pd.DataFrame, frames_dir: str | os.PathLike, cameras: 
     rows, best = [], (np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
     for spec in plan_runs(frames, cfg):
         images = image_inputs(frames, frames_dir, gt, spec.keys)
-        for known in cfg.known_intrinsics:
-            setting = SETTINGS[known]
+        for st in cfg.settings:
+            setting = st.name
             log.info("%s %s (%s): %d images", scene, spec.method, setting, len(images))
-            result = run_colmap(images, cfg.options(known, threads), work_root=work_root)
-            row, al = colmap_row(scene, spec, setting, images, result, gt)
+            result = run_colmap(images, cfg.options(st, threads), work_root=work_root)
+            row, al = colmap_row(scene, spec, setting, st.known_intrinsics, images, result, gt)
             if al is not None and len(result.points):
                 pts = al.similarity.apply(result.points)
                 if ply_dir is not None:

@@ -34,7 +34,10 @@ class ColmapOptions:
     known_intrinsics: use the given pinhole K per image and keep it fixed in bundle adjustment;
         otherwise COLMAP's default (SIMPLE_RADIAL, focal guessed from the image size, refined).
     max_num_features: SIFT features per image.
-    min_num_matches, init_min_num_inliers, init_min_tri_angle (degrees): mapper thresholds.
+    min_num_matches, init_min_num_inliers, init_min_tri_angle (degrees), abs_pose_min_num_inliers,
+        abs_pose_min_inlier_ratio: mapper thresholds (pair verification, initial pair, adding
+        an image); min_model_size: smaller models are discarded (COLMAP caps it at 80 % of
+        the images).
     num_threads: threads for extraction, matching and mapping (-1 = all cores).
     seed: random seed of the mapper (reproducible runs).
     max_runtime_seconds: wall-clock cap of the mapping step (-1 = none).
@@ -47,6 +50,9 @@ class ColmapOptions:
     min_num_matches: int = 15
     init_min_num_inliers: int = 100
     init_min_tri_angle: float = 16.0
+    abs_pose_min_num_inliers: int = 30
+    abs_pose_min_inlier_ratio: float = 0.25
+    min_model_size: int = 10
     num_threads: int = 1
     seed: int = 0
     max_runtime_seconds: float = -1.0
@@ -96,6 +102,7 @@ class ColmapResult:
     num_models: int = 0
     num_features: int = 0
     num_verified_pairs: int = 0  # image pairs with >= min_num_matches geometric inliers
+    num_initial_pairs: int = 0  # initial pairs the mapper started a model from
     seconds: float = float("nan")
     status: str = "ok"
 
@@ -140,11 +147,14 @@ def _set_known_intrinsics(pycolmap, db_path: Path, images: list[ImageInput]) -> 
 def _pipeline_options(pycolmap, options: ColmapOptions):
     pipe = pycolmap.IncrementalPipelineOptions()
     pipe.min_num_matches = options.min_num_matches
+    pipe.min_model_size = options.min_model_size
     pipe.num_threads = options.num_threads
     pipe.random_seed = options.seed
     pipe.max_runtime_seconds = int(options.max_runtime_seconds)
     pipe.mapper.init_min_num_inliers = options.init_min_num_inliers
     pipe.mapper.init_min_tri_angle = options.init_min_tri_angle
+    pipe.mapper.abs_pose_min_num_inliers = options.abs_pose_min_num_inliers
+    pipe.mapper.abs_pose_min_inlier_ratio = options.abs_pose_min_inlier_ratio
     pipe.mapper.random_seed = options.seed
     pipe.mapper.num_threads = options.num_threads
     if options.known_intrinsics:
@@ -224,8 +234,11 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
             result.num_verified_pairs = int(sum(n >= options.min_num_matches for n in inliers))
         finally:
             db.close()
+        starts: list[int] = []
         recs = pycolmap.incremental_mapping(
-            str(db_path), str(image_dir), str(sparse), _pipeline_options(pycolmap, options))
+            str(db_path), str(image_dir), str(sparse), _pipeline_options(pycolmap, options),
+            initial_image_pair_callback=lambda: starts.append(1))
+        result.num_initial_pairs = len(starts)
     except PYCOLMAP_ERRORS as exc:
         result.seconds = time.perf_counter() - t0
         result.status = f"error: {type(exc).__name__}: {str(exc).strip()[:300]}"
@@ -236,8 +249,13 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
         best = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
         _collect(best, result)
     if result.registered < 2:
-        why = ("no initial image pair found" if not recs else
-               f"only {result.registered} image(s) registered")
+        if not recs and not result.num_initial_pairs:
+            why = "no initial image pair found"
+        elif not recs:
+            why = (f"{result.num_initial_pairs} model(s) started but none kept (too few "
+                   "images registered)")
+        else:
+            why = f"only {result.registered} image(s) registered"
         result.status = (f"failed: {why} ({result.num_features} SIFT features, "
                          f"{result.num_verified_pairs} verified pairs)")
     return result

@@ -51,7 +51,7 @@ def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
                  "--cameras", str(textured_rig / "cameras.parquet"), "--fit-cameras", str(fit),
                  "--fit-eval", str(tmp_path / "fit_eval.parquet"), "--out", str(out),
                  "--threads", "2",
-                 "--config-json", json.dumps(FAST | {"known_intrinsics": [True]})])
+                 "--config-json", json.dumps(FAST | {"settings": [{"name": "known_intrinsics"}]})])
     assert code == 0
     df = read_table(out, "colmap_compare")
     assert list(df["method"]) == ["colmap_static_frame_0", "colmap_sequence", "smplx_camera_solve"]
@@ -86,7 +86,8 @@ def test_cli_textureless_scene_records_failures(flat_rig, tmp_path):
                  "--config-json", json.dumps(FAST)])
     assert code == 0
     df = read_table(out, "colmap_compare")
-    assert len(df) == 4 and set(df["setting"]) == {"known_intrinsics", "estimated_intrinsics"}
+    assert len(df) == 6 and set(df["setting"]) == {"known_intrinsics", "estimated_intrinsics",
+                                                   "known_intrinsics_relaxed"}
     assert df["status"].str.startswith("failed").all()
     assert (df["registered"] < 2).all() and df["rot_error_deg"].isna().all()
     assert df["seconds"].notna().all() and (df["ply"] == "").all()
@@ -119,6 +120,20 @@ def test_schema_defaults_build_the_config():
     assert cfg == CompareConfig()
     with pytest.raises(InputError, match="bogus"):
         CompareConfig.from_dict({"bogus": 1})
+    with pytest.raises(InputError, match="unique"):
+        CompareConfig.from_dict({"settings": [{"name": "a"}, {"name": "a"}]})
+
+
+def test_setting_overrides_apply_on_top_of_the_base():
+    cfg = CompareConfig.from_dict(validate(
+        {"init_min_num_inliers": 50, "settings": [
+            {"name": "plain"}, {"name": "loose", "known_intrinsics": False,
+                                "init_min_num_inliers": 10}]},
+        "stages/colmap.schema.yaml"))
+    plain, loose = (cfg.options(st, threads=1) for st in cfg.settings)
+    assert plain.init_min_num_inliers == 50 and plain.known_intrinsics
+    assert loose.init_min_num_inliers == 10 and not loose.known_intrinsics
+    assert loose.min_model_size == plain.min_model_size == 10
 
 
 def test_cli_rejects_a_bad_config_naming_the_key(textured_rig, tmp_path, capsys):
@@ -145,7 +160,7 @@ def test_module_entry_point_runs_isolated_children(flat_rig, tmp_path):
     import sys
 
     out = tmp_path / "t.parquet"
-    cfg = {"num_static_frames": 1, "sequence_frames": 0, "known_intrinsics": [True]}
+    cfg = {"num_static_frames": 1, "sequence_frames": 0, "settings": [{"name": "k"}]}
     proc = subprocess.run(
         [sys.executable, "-m", "signsplat", "colmap-compare", "--frames",
          str(flat_rig / "frames.parquet"), "--cameras", str(flat_rig / "cameras.parquet"),

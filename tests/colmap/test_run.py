@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from signsplat.colmap.compare import SETTINGS, GroundTruth, RunSpec, colmap_row, image_inputs
+from signsplat.colmap.compare import GroundTruth, RunSpec, colmap_row, image_inputs
 from signsplat.colmap.run import ColmapOptions, run_colmap
 from signsplat.io.tables import read_table
 
@@ -20,7 +20,7 @@ def _inputs(folder: Path, frame: int = 0):
 def _run(folder: Path, known: bool = True, **kw):
     images, gt = _inputs(folder)
     result = run_colmap(images, ColmapOptions(known_intrinsics=known, num_threads=2, **kw))
-    row, al = colmap_row(folder.name, RunSpec("colmap_static_frame_0", 0, ()), SETTINGS[known],
+    row, al = colmap_row(folder.name, RunSpec("colmap_static_frame_0", 0, ()), "test", known,
                          images, result, gt)
     return result, row, al
 
@@ -31,6 +31,8 @@ def test_textured_rig_registers_and_aligns(textured_rig, known, isolate):
     result, row, al = _run(textured_rig, known, isolate=isolate)
     assert result.status == "ok"
     assert row["registered"] >= 7 and row["images"] == 8
+    assert row["views_registered"] == row["registered"]
+    assert result.num_initial_pairs >= 1
     assert row["points3d"] > 100
     assert row["reproj_error_px"] < 1.0
     assert row["rot_error_deg_max"] < 1.0
