@@ -1,0 +1,116 @@
+"""The anchored avatar model: posing, per-part bounds, displacements, switches, finite extremes."""
+
+import math
+
+import roma
+import torch
+
+from conftest import SIZES, TinyBody, random_smplx, rig
+from signsplat.avatar.config import avatar_config
+from signsplat.avatar.model import sh_degree_at, wxyz_to_xyzw
+from signsplat.avatar.train import build_model
+from signsplat.render import rasterization
+
+CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}
+
+
+def _model(body, **over):
+    cfg = avatar_config({**CFG, **over})
+    return build_model(body, torch.zeros(1, 10), cfg), cfg
+
+
+def _pose(model, body, params, sh=0):
+    out = body(**params)
+    return model(out.v_shaped, out.vertices, out.transforms, params.get("transl"), sh)
+
+
+def test_rest_pose_puts_points_on_the_mesh(tiny_body):
+    model, _ = _model(tiny_body)
+    g = _pose(model, tiny_body, {"betas": torch.zeros(1, 10)})
+    expect = (tiny_body.v_template[model.anchors] * model.bary_fixed[..., None]).sum(1)
+    torch.testing.assert_close(g.means[0], expect, atol=1e-6, rtol=0)  # zero-init displacement
+    assert g.colors.shape == (1, model.num_points, 1, 3)
+    torch.testing.assert_close(g.quats[0].norm(dim=-1), torch.ones(model.num_points))
+
+
+def test_global_rotation_moves_means_and_turns_gaussians(tiny_body):
+    model, _ = _model(tiny_body)
+    with torch.no_grad():
+        model.quat.copy_(torch.nn.functional.normalize(torch.randn_like(model.quat), dim=-1))
+    rotvec = torch.tensor([[0.3, -1.1, 0.4]])
+    g0 = _pose(model, tiny_body, {"global_orient": torch.zeros(1, 3)})
+    g1 = _pose(model, tiny_body, {"global_orient": rotvec})
+    R = roma.rotvec_to_rotmat(rotvec[0])
+    root = tiny_body.rest_joints[0]
+    torch.testing.assert_close(g1.means[0], (g0.means[0] - root) @ R.T + root, atol=1e-5, rtol=0)
+    r0 = roma.unitquat_to_rotmat(wxyz_to_xyzw(g0.quats[0]))
+    r1 = roma.unitquat_to_rotmat(wxyz_to_xyzw(g1.quats[0]))
+    torch.testing.assert_close(r1, R @ r0, atol=1e-4, rtol=0)
+
+
+def test_scales_bounded_per_part_and_displacement_bounded(tiny_body):
+    model, cfg = _model(tiny_body)
+    with torch.no_grad():
+        model.scale_raw.fill_(50.0)
+        model.disp_net.heads[0].bias.fill_(100.0)
+        g = _pose(model, tiny_body, {"betas": torch.zeros(1, 10)})
+    bound = model.scale_max_per_point()
+    assert bool((g.scales[0] <= bound[:, None] + 1e-6).all())
+    hands = model.part_group() == 2
+    assert float(g.scales[0][hands].max()) <= cfg.model.scale_max.hands + 1e-6
+    assert float(g.scales[0][~hands].max()) > cfg.model.scale_max.hands  # body allows more
+    d = g.displacement.norm(dim=-1)
+    vparts = model.part_group()[: model.num_vertices]
+    lim = torch.tensor([cfg.model.displacement_limit.body, cfg.model.displacement_limit.head,
+                        cfg.model.displacement_limit.hands])[vparts]
+    assert bool((d <= lim + 1e-6).all()) and float(d.min()) > 0.5 * float(lim.min())
+    # displacement moves original vertices along their normals; points follow their anchors
+    moved = (g.canonical[0] - model.canonical_points()).norm(dim=-1)
+    assert float(moved[: model.num_vertices].min()) > 0
+
+
+def test_pose_dependent_switch_removes_omega(tiny_body):
+    on, _ = _model(tiny_body)
+    off, _ = _model(tiny_body, model={"pose_dependent": False})
+    assert on.omega is not None and off.omega is None
+    assert not any(n.startswith("omega") for n, _ in off.named_parameters())
+    with torch.no_grad():  # make Omega's heads non-zero: attributes then depend on the pose
+        for h in on.omega.heads:
+            h.weight.normal_(0, 0.5)
+    p = random_smplx(2, seed=3, scale=0.5)
+    a = _pose(on, tiny_body, {k: v[:1] for k, v in p.items()})
+    b = _pose(on, tiny_body, {k: v[1:] for k, v in p.items()})
+    assert not torch.allclose(a.opacities, b.opacities)
+    a = _pose(off, tiny_body, {k: v[:1] for k, v in p.items()})
+    b = _pose(off, tiny_body, {k: v[1:] for k, v in p.items()})
+    torch.testing.assert_close(a.opacities, b.opacities)
+    torch.testing.assert_close(a.scales, b.scales)
+
+
+def test_far_pose_renders_finite(tiny_body):
+    """Joint rotations near 180 degrees everywhere (far outside any training pose)."""
+    model, _ = _model(tiny_body, model={"sh_degree": 1})
+    g = torch.Generator().manual_seed(7)
+    params = {k: torch.zeros(1, n) for k, n in SIZES.items()}
+    for k in ("body_pose", "left_hand_pose", "right_hand_pose", "global_orient", "jaw_pose"):
+        rv = torch.randn(1, SIZES[k] // 3, 3, generator=g)
+        params[k] = (rv / rv.norm(dim=-1, keepdim=True) * (math.pi - 1e-3)).reshape(1, -1)
+    params["transl"] = torch.tensor([[0.0, 0.0, 0.5]])
+    out = _pose(model, tiny_body, params, sh=1)
+    for t in (out.means, out.quats, out.scales, out.opacities, out.colors):
+        assert bool(torch.isfinite(t).all())
+    vm, K = rig(2, 24)
+    img, alpha, _ = rasterization(out.means[0], out.quats[0], out.scales[0], out.opacities[0],
+                                  out.colors[0], vm, K, 24, 24, sh_degree=1,
+                                  backgrounds=torch.ones(2, 3))
+    assert bool(torch.isfinite(img).all()) and bool(torch.isfinite(alpha).all())
+    # gradients stay finite too
+    img.sum().backward()
+    assert all(bool(torch.isfinite(p.grad).all()) for p in model.parameters() if p.grad is not None)
+
+
+def test_sh_schedule():
+    assert sh_degree_at(10, 100, 2, 0.75) == 0
+    assert sh_degree_at(74, 100, 2, 0.75) == 0
+    assert sh_degree_at(75, 100, 2, 0.75) == 2
+    assert sh_degree_at(99, 100, 0, 0.75) == 0

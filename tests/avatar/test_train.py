@@ -1,0 +1,215 @@
+"""Trainer and evaluation on a tiny scene rendered from a 'teacher' avatar (real rasterizer)."""
+
+import logging
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from conftest import TinyBody, make_scene, random_smplx, rig
+from signsplat.avatar import regularize as reg_mod
+from signsplat.avatar import train as train_mod
+from signsplat.avatar.config import avatar_config
+from signsplat.avatar.data import load_scene
+from signsplat.avatar.evaluate import evaluate_checkpoint
+from signsplat.avatar.train import AvatarTrainer, build_model, render_gaussians
+from signsplat.io.images import write_png
+from signsplat.io.tables import read_table, write_table
+from signsplat.render import rasterization
+
+SIZE = 24
+BASE = {
+    "upsample": {"edge_length": 0.08, "face_area": 3e-3},
+    "model": {"scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}, "hidden": 8},
+    "train": {"iterations": 6, "test_interval": 3, "test_offset": 2, "log_every": 1,
+              "accumulate_poses": 2, "checkpoint_every": 3, "render_backend": "cpu"},
+    "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 100,
+                 "grad_threshold": 1e-6, "max_new_per_refine": 20},
+    "eval": {"crop_size": {"body": 0.0, "head": 0.4, "hands": 0.4}, "refine_steps": 2},
+}
+
+
+def _cfg(**over):
+    data = {k: dict(v) for k, v in BASE.items()}
+    for k, v in over.items():
+        data[k] = {**data.get(k, {}), **v}
+    return avatar_config(data)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    torch.manual_seed(0)
+    body = TinyBody()
+    vm, K = rig(3, SIZE)
+    smplx = random_smplx(6)
+    teacher = build_model(body, torch.zeros(1, 10), _cfg())
+    with torch.no_grad():
+        teacher.sh_dc.normal_(0, 1.0)
+        imgs = []
+        for c in range(3):
+            row = []
+            for f in range(6):
+                p = {k: v[f:f + 1] for k, v in smplx.items()}
+                o = body(**p)
+                g = teacher(o.v_shaped, o.vertices, o.transforms, p["transl"], 0)
+                col, _, _ = render_gaussians(rasterization, g, 0, vm[c:c + 1], K[c:c + 1], SIZE,
+                                             SIZE, torch.ones(3), "cpu")
+                row.append(col[0])
+            imgs.append(torch.stack(row))
+    return body, make_scene(torch.stack(imgs), vm, K, smplx)
+
+
+def _params(model):
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+def test_training_improves_psnr_and_writes_a_log(scene, tmp_path):
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 30}))
+    assert list(data.frames[tr.split.test_frames]) == [2, 5]
+    log = tr.run(progress=False)
+    assert np.isfinite(log["loss"]).all()
+    first, last = log["psnr"].iloc[:3].mean(), log["psnr"].iloc[-3:].mean()
+    assert last > first + 1.5, (first, last)
+    assert log["added"].sum() > 0 and tr.model.num_points > int(tr.model.is_original.sum())
+    log.insert(0, "variant", "t")
+    log.insert(0, "scene", "tiny")
+    write_table(log, tmp_path / "train_log.parquet", "avatar_train_log")
+    assert len(read_table(tmp_path / "train_log.parquet", "avatar_train_log")) == 30
+
+
+def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path):
+    body, data = scene
+    cfg = _cfg()
+    a = AvatarTrainer(body, data, cfg)
+    a.run(iterations=3, checkpoint=tmp_path / "half.pt", progress=False)
+    a.run(iterations=6, progress=False)
+    assert a.model.num_points > int(a.model.is_original.sum())  # densified on the way
+
+    b = AvatarTrainer(body, data, cfg)
+    b.load_checkpoint(tmp_path / "half.pt")
+    assert b.step == 3
+    b.run(iterations=6, progress=False)
+    pa, pb = _params(a.model), _params(b.model)
+    assert pa.keys() == pb.keys()
+    for k in pa:
+        torch.testing.assert_close(pa[k], pb[k], rtol=0, atol=0, msg=k)
+    for (ka, va), (kb, vb) in zip(a.smplx.state_dict().items(), b.smplx.state_dict().items()):
+        torch.testing.assert_close(va, vb, rtol=0, atol=0)
+    assert [r["loss"] for r in a.log_rows] == [r["loss"] for r in b.log_rows]
+
+
+def _write_scene(root, data, smplx_override):
+    rows, cams = [], []
+    for vi, v in enumerate(data.views):
+        R = data.viewmats[vi, :3, :3].double().numpy()
+        t = data.viewmats[vi, :3, 3].double().numpy()
+        K = data.Ks[vi].double().numpy()
+        cams.append(dict(scene="tiny", view=int(v), frame=-1, width=SIZE, height=SIZE,
+                         fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], R=list(R.ravel()),
+                         t=list(t)))
+        for fi, f in enumerate(data.frames):
+            img = f"images/{vi:02d}/{fi:04d}.png"
+            msk = f"masks/{vi:02d}/{fi:04d}.png"
+            write_png(root / img, data.images[vi, fi].numpy())
+            write_png(root / msk, data.masks[vi, fi].numpy())
+            rows.append(dict(scene="tiny", view=int(v), frame=int(f), time=fi / 25, image=img,
+                             mask=msk))
+    write_table(pd.DataFrame(rows), root / "frames.parquet", "frames")
+    write_table(pd.DataFrame(cams), root / "cameras.parquet", "cameras")
+    srows = []
+    for fi, f in enumerate(data.frames):
+        r = dict(scene="tiny", frame=int(f))
+        for k, v in smplx_override.items():
+            r[k] = list(v[fi].numpy().astype(np.float32))
+        srows.append(r)
+    write_table(pd.DataFrame(srows), root / "smplx.parquet", "smplx_params")
+
+
+def test_frame_with_missing_hands_trains_without_nan(scene, tmp_path):
+    """A fit with no hand keypoints leaves NaN hand poses: loaded as rest hands, trains finite."""
+    body, data = scene
+    smplx = {k: v.clone() for k, v in data.smplx.items()}
+    for k in ("left_hand_pose", "right_hand_pose"):
+        smplx[k][[0, 1, 3, 4]] = float("nan")
+    _write_scene(tmp_path, data, smplx)
+    loaded = load_scene(tmp_path / "frames.parquet", tmp_path / "cameras.parquet",
+                        tmp_path / "smplx.parquet")
+    assert torch.equal(loaded.images, data.images)
+    assert bool(torch.isfinite(loaded.smplx["left_hand_pose"]).all())
+    assert float(loaded.smplx["left_hand_pose"][0].abs().sum()) == 0.0
+    tr = AvatarTrainer(body, loaded, _cfg(train={"iterations": 8}))
+    log = tr.run(progress=False)
+    assert np.isfinite(log["loss"]).all() and "hand" in log.columns
+    for name, p in tr.model.named_parameters():
+        assert bool(torch.isfinite(p).all()), name
+    assert bool(torch.isfinite(tr.smplx.left_hand_pose).all())
+
+
+def test_switches_really_remove_their_computation(scene, monkeypatch):
+    body, data = scene
+    calls = []
+
+    def counting(**kw):
+        calls.append(1)
+        return rasterization(**kw)
+
+    # accumulation off: one render per optimiser step (on: accumulate_poses)
+    tr = AvatarTrainer(body, data, _cfg(train={"accumulate": False}), rasterize=counting)
+    tr.train_step()
+    assert len(calls) == 1
+    calls.clear()
+    tr = AvatarTrainer(body, data, _cfg(train={"accumulate_poses": 3}), rasterize=counting)
+    tr.train_step()
+    assert len(calls) == 3
+
+    # regularisation off: neighbourhoods never built, no reg terms
+    def boom(*a, **k):
+        raise AssertionError("computed although switched off")
+
+    monkeypatch.setattr(reg_mod, "build_neighbourhoods", boom)
+    tr = AvatarTrainer(body, data, _cfg(regularize={"enabled": False}))
+    row = tr.train_step()
+    assert not any(k.startswith("reg_") for k in row)
+    monkeypatch.undo()
+
+    # densification off: the strategy is never consulted, the points never change
+    tr = AvatarTrainer(body, data, _cfg(strategy={"enabled": False}))
+    n0 = tr.model.num_points
+    monkeypatch.setattr(tr.strategy, "step_post_backward", boom)
+    monkeypatch.setattr(tr.strategy, "step_pre_backward", boom)
+    for _ in range(4):
+        tr.train_step()
+    assert tr.model.num_points == n0
+
+    # pose-dependent networks off: no Omega; SMPL-X fine-tuning off: no SMPL-X parameters
+    tr = AvatarTrainer(body, data, _cfg(model={"pose_dependent": False},
+                                        train={"finetune_smplx": False}))
+    assert tr.model.omega is None
+    assert not list(tr.smplx.parameters())
+    assert [g["name"] for g in tr.optimizer.param_groups if g["name"] in ("smplx",)] == []
+    before = tr.smplx.body_pose.clone()
+    tr.train_step()
+    assert torch.equal(before, tr.smplx.body_pose)
+
+
+def test_evaluation_table_images_and_far_view_warning(scene, tmp_path, caplog):
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "test_views": [2]}))
+    tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
+    with caplog.at_level(logging.WARNING, logger="signsplat.avatar.evaluate"):
+        df = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "tiny-test", tmp_path / "img",
+                                 overrides={"save_images": 2})
+    assert any("degrees from the nearest training camera" in r.message for r in caplog.records)
+    write_table(df, tmp_path / "metrics.parquet", "avatar_metrics")
+    assert set(df.split) == {"novel_pose", "novel_view", "novel_pose_view", "train"}
+    assert set(df.protocol) == {"bg_replaced", "mask_only", "raw_gt"}
+    assert {"full", "left_hand", "right_hand", "face"} <= set(df.part)
+    assert set(df.metric) == {"psnr", "ssim"}  # no LPIPS weights configured: not reported
+    assert set(df[df.split == "novel_pose"].refine) == {False, True}
+    assert set(df[df.split == "train"].refine) == {False}
+    assert np.isfinite(df.value).all() and (df.train_seconds > 0).all()
+    assert len(list((tmp_path / "img").glob("*.png"))) == 2
+    full = df[(df.split == "novel_pose") & (df.part == "full") & (df.metric == "psnr")]
+    assert (full.value > 10).all()
