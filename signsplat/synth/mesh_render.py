@@ -8,8 +8,9 @@ perspective-correct and the depth is ``z = 1 / sum(lam)``. Triangles crossing th
 need no special case beyond bounding their screen box by the near-clipped polygon, and
 triangles fully behind the near plane are culled.
 
-The image is split into horizontal bands processed in parallel; within a band triangles are
-drawn in index order with a strict depth test, so the result is deterministic.
+Triangles are drawn in index order with a strict depth test, so the result is deterministic
+(ties go to the lower face index). The kernels release the GIL (``nogil``): callers render
+several views at once from a thread pool.
 
 Functions take NumPy arrays: positions in metres (world frame), cameras in the OpenCV
 convention ``x_cam = R @ x_world + t``, pixel centres at integer coordinates.
@@ -27,7 +28,6 @@ __all__ = ["Raster", "rasterize", "interpolate", "interpolate_at", "face_attribu
            "scale_intrinsics"]
 
 _NEAR_DEFAULT = 1e-3
-_BAND_ROWS = 16
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def camera_depth(points: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray
     return np.asarray(points, np.float64) @ np.asarray(R, np.float64).T + np.asarray(t, np.float64)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _screen_box(c0, c1, c2, fx, fy, cx, cy, near, W, H):
     """Integer pixel bounding box (x0, x1, y0, y1) of a camera-space triangle clipped at z=near.
 
@@ -105,7 +105,7 @@ def _screen_box(c0, c1, c2, fx, fy, cx, cy, near, W, H):
     return x0, x1, y0, y1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _setup(cam, faces, fx, fy, cx, cy, near, W, H, boxes, inv):
     """Per-triangle screen boxes and inverse vertex matrices (degenerate -> empty box)."""
     for f in range(faces.shape[0]):
@@ -139,42 +139,35 @@ def _setup(cam, faces, fx, fy, cx, cy, near, W, H, boxes, inv):
         inv[f, 2, 0], inv[f, 2, 1], inv[f, 2, 2] = a20 * r, a21 * r, a22 * r
 
 
-@numba.njit(cache=True, parallel=True)
-def _raster_kernel(boxes, inv, fx, fy, cx, cy, near, W, H, band_rows, depth, face_id, bary):
-    n_bands = (H + band_rows - 1) // band_rows
-    n_faces = boxes.shape[0]
-    for band in numba.prange(n_bands):
-        r0 = band * band_rows
-        r1 = min(r0 + band_rows, H) - 1
-        for f in range(n_faces):
-            x0, x1, y0, y1 = boxes[f, 0], boxes[f, 1], boxes[f, 2], boxes[f, 3]
-            if x0 > x1 or y1 < r0 or y0 > r1:
-                continue
-            ya = max(y0, r0)
-            yb = min(y1, r1)
-            i00, i01, i02 = inv[f, 0, 0], inv[f, 0, 1], inv[f, 0, 2]
-            i10, i11, i12 = inv[f, 1, 0], inv[f, 1, 1], inv[f, 1, 2]
-            i20, i21, i22 = inv[f, 2, 0], inv[f, 2, 1], inv[f, 2, 2]
-            for y in range(ya, yb + 1):
-                dy = (y - cy) / fy
-                for x in range(x0, x1 + 1):
-                    dx = (x - cx) / fx
-                    l0 = i00 * dx + i01 * dy + i02
-                    l1 = i10 * dx + i11 * dy + i12
-                    l2 = i20 * dx + i21 * dy + i22
-                    if l0 < 0.0 or l1 < 0.0 or l2 < 0.0:
-                        continue
-                    s = l0 + l1 + l2
-                    if s <= 0.0:
-                        continue
-                    z = 1.0 / s
-                    if z < near or z >= depth[y, x]:
-                        continue
-                    depth[y, x] = z
-                    face_id[y, x] = f
-                    bary[y, x, 0] = l0 * z
-                    bary[y, x, 1] = l1 * z
-                    bary[y, x, 2] = l2 * z
+@numba.njit(cache=True, nogil=True)
+def _raster_kernel(boxes, inv, fx, fy, cx, cy, near, depth, face_id, bary):
+    for f in range(boxes.shape[0]):
+        x0, x1, y0, y1 = boxes[f, 0], boxes[f, 1], boxes[f, 2], boxes[f, 3]
+        if x0 > x1 or y0 > y1:
+            continue
+        i00, i01, i02 = inv[f, 0, 0], inv[f, 0, 1], inv[f, 0, 2]
+        i10, i11, i12 = inv[f, 1, 0], inv[f, 1, 1], inv[f, 1, 2]
+        i20, i21, i22 = inv[f, 2, 0], inv[f, 2, 1], inv[f, 2, 2]
+        for y in range(y0, y1 + 1):
+            dy = (y - cy) / fy
+            for x in range(x0, x1 + 1):
+                dx = (x - cx) / fx
+                l0 = i00 * dx + i01 * dy + i02
+                l1 = i10 * dx + i11 * dy + i12
+                l2 = i20 * dx + i21 * dy + i22
+                if l0 < 0.0 or l1 < 0.0 or l2 < 0.0:
+                    continue
+                s = l0 + l1 + l2
+                if s <= 0.0:
+                    continue
+                z = 1.0 / s
+                if z < near or z >= depth[y, x]:
+                    continue
+                depth[y, x] = z
+                face_id[y, x] = f
+                bary[y, x, 0] = l0 * z
+                bary[y, x, 1] = l1 * z
+                bary[y, x, 2] = l2 * z
 
 
 def rasterize(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, R: np.ndarray,
@@ -210,8 +203,7 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, R: np.ndar
     _setup(cam, faces, fx, fy, cx, cy, float(near), W, H, boxes, inv)
     # the kernel writes float64 depth for a stable test, stored as float32 afterwards
     depth64 = np.full((H, W), np.inf, np.float64)
-    _raster_kernel(boxes, inv, fx, fy, cx, cy, float(near), W, H, _BAND_ROWS, depth64,
-                   face_id, bary)
+    _raster_kernel(boxes, inv, fx, fy, cx, cy, float(near), depth64, face_id, bary)
     depth[...] = depth64
     return Raster(depth, face_id, bary)
 
@@ -244,11 +236,11 @@ def interpolate_at(faces: np.ndarray, attributes: np.ndarray, face_ids: np.ndarr
                           np.ascontiguousarray(bary, dtype=np.float32))
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def _interp_kernel(faces, attributes, face_ids, bary):
     P, C = face_ids.shape[0], attributes.shape[1]
     out = np.empty((P, C), np.float32)
-    for p in numba.prange(P):
+    for p in range(P):
         f = face_ids[p]
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
         wa, wb, wc = bary[p, 0], bary[p, 1], bary[p, 2]
@@ -320,12 +312,12 @@ def downsample(image: np.ndarray, factor: int) -> np.ndarray:
     return out if image.ndim == 3 else out[..., 0]
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def _downsample_kernel(image, f):
     H, W, C = image.shape[0] // f, image.shape[1] // f, image.shape[2]
     out = np.zeros((H, W, C), np.float32)
     scale = 1.0 / (f * f)
-    for y in numba.prange(H):
+    for y in range(H):
         for x in range(W):
             for dy in range(f):
                 for dx in range(f):

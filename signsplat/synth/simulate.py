@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -327,16 +328,18 @@ def simulate_scene(scene: Mapping[str, Any], body_path: str | os.PathLike,
                    threads: int = 1, progress: bool = True) -> dict[str, Any]:
     """Simulate one scene (validated spec dict) into ``out_dir``; see the module docstring.
 
-    Returns a summary: ``frames``, ``views``, ``seconds`` (render + write), ``per_view_frame``
-    (seconds per rendered image) and the written paths.
+    ``threads`` worker threads render views in parallel (the Numba kernels release the GIL)
+    and torch poses the body with as many threads; the files do not depend on it.
+
+    Returns a summary: ``frames``, ``views``, ``images``, ``seconds`` (all), ``pose_seconds``
+    (loading and posing), ``render_seconds`` (summed over workers: render + PNG writing +
+    keypoints), ``per_view_frame`` (wall seconds after posing per image) and the paths.
     """
-    import numba
     import torch
     from tqdm import tqdm
 
     t_start = time.perf_counter()
     threads = max(1, int(threads))
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     torch.set_num_threads(threads)
     out = Path(out_dir)
     name = scene_name(scene, out)
@@ -373,34 +376,43 @@ def simulate_scene(scene: Mapping[str, Any], body_path: str | os.PathLike,
     if not cam_effects:
         cam_rows = [_camera_rows(name, v, -1, cam) for v, cam in enumerate(rig)]
     n_kp = kps.shape[1]
-    t_render = 0.0
-    for f in tqdm(range(T), desc=f"simulate {name}", unit="frame", disable=not progress):
+
+    def job(f: int, v: int, cam: Camera):
+        """Render, write and label one view of one frame (runs in a worker thread)."""
+        t0 = time.perf_counter()
         poses = list(sub_verts[f]) if blur else [verts[f]]
-        for v, base in enumerate(rig):
-            cam = base
-            for effect in cam_effects:
-                cam = effect.camera(cam, v, f)
-            if cam_effects:
-                cam_rows.append(_camera_rows(name, v, f, cam))
-            t0 = time.perf_counter()
-            result = render_view(poses, weights, signer, cam, chain, v, f, target, ss, near,
-                                 depth_pose=verts[f] if blur else None)
-            t_render += time.perf_counter() - t0
-            image = f"images/{v:02d}/{f:04d}.png"
-            mask = f"masks/{v:02d}/{f:04d}.png"
-            write_png(out / image, np.round(result.rgb * 255.0).astype(np.uint8))
-            write_png(out / mask, np.where(result.mask, 255, 0).astype(np.uint8))
-            frame_rows.append({"scene": name, "view": v, "frame": f, "time": f / fps,
-                               "image": image, "mask": mask})
-            uv, z = project(kps[f], cam)
-            vis = keypoint_visibility(uv, z, result.depth, tol)
-            kp_cols["view"].append(np.full(n_kp, v, np.int32))
-            kp_cols["frame"].append(np.full(n_kp, f, np.int32))
-            kp_cols["kp"].append(np.arange(n_kp, dtype=np.int16))
-            kp_cols["x"].append(uv[:, 0].astype(np.float32))
-            kp_cols["y"].append(uv[:, 1].astype(np.float32))
-            kp_cols["visible"].append(vis)
-            kp_cols["depth"].append(z.astype(np.float32))
+        result = render_view(poses, weights, signer, cam, chain, v, f, target, ss, near,
+                             depth_pose=verts[f] if blur else None)
+        image, mask = f"images/{v:02d}/{f:04d}.png", f"masks/{v:02d}/{f:04d}.png"
+        write_png(out / image, np.round(result.rgb * 255.0).astype(np.uint8))
+        write_png(out / mask, np.where(result.mask, 255, 0).astype(np.uint8))
+        uv, z = project(kps[f], cam)
+        vis = keypoint_visibility(uv, z, result.depth, tol)
+        row = {"scene": name, "view": v, "frame": f, "time": f / fps, "image": image,
+               "mask": mask}
+        return row, uv, z, vis, time.perf_counter() - t0
+
+    t_render = 0.0
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for f in tqdm(range(T), desc=f"simulate {name}", unit="frame", disable=not progress):
+            cams = []
+            for v, cam in enumerate(rig):
+                for effect in cam_effects:
+                    cam = effect.camera(cam, v, f)
+                if cam_effects:
+                    cam_rows.append(_camera_rows(name, v, f, cam))
+                cams.append(cam)
+            results = list(pool.map(job, [f] * len(cams), range(len(cams)), cams))
+            for v, (row, uv, z, vis, seconds) in enumerate(results):
+                t_render += seconds
+                frame_rows.append(row)
+                kp_cols["view"].append(np.full(n_kp, v, np.int32))
+                kp_cols["frame"].append(np.full(n_kp, f, np.int32))
+                kp_cols["kp"].append(np.arange(n_kp, dtype=np.int16))
+                kp_cols["x"].append(uv[:, 0].astype(np.float32))
+                kp_cols["y"].append(uv[:, 1].astype(np.float32))
+                kp_cols["visible"].append(vis)
+                kp_cols["depth"].append(z.astype(np.float32))
 
     frames = pd.DataFrame(frame_rows).astype({"view": np.int32, "frame": np.int32})
     keypoints = pd.DataFrame({k: np.concatenate(v) for k, v in kp_cols.items()})

@@ -116,9 +116,12 @@ def test_gloss_motion_is_stitched_with_holds_and_smooth_transitions(gloss_librar
     np.testing.assert_allclose(m["right_hand_pose"][-2 - n2:-2], book["right_hand_pose"],
                                atol=1e-5)
     np.testing.assert_allclose(m["expression"][2:2 + n1], 0.5 * hello["expression"], atol=1e-5)
-    # no jumps: the largest frame-to-frame change is not larger than inside the clips
-    clip_step = max(np.abs(np.diff(c["body_pose"], axis=0)).max() for c in (hello, book))
-    assert np.abs(np.diff(m["body_pose"], axis=0)).max() <= clip_step + 0.05
+    # no jump from one gloss to the next: the transition spreads the change over frames
+    for block in ("body_pose", "right_hand_pose"):
+        jump = np.abs(hello[block][-1] - book[block][0]).max()
+        clip_step = max(np.abs(np.diff(c[block], axis=0)).max() for c in (hello, book))
+        step = np.abs(np.diff(m[block], axis=0)).max()
+        assert step <= max(clip_step, 0.25 * jump) + 1e-6, block
     np.testing.assert_array_equal(m["global_orient"], 0)
     np.testing.assert_array_equal(m["transl"], 0)
     np.testing.assert_allclose(m["betas"], [[0.3] + [0] * 9] * T)
