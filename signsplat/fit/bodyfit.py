@@ -114,19 +114,133 @@ class FitParams(torch.nn.Module):
         return out
 
 
+def linearise_regressor(model, regressor, tol_m: float = 1e-5, seed: int = 0
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Express a keypoint regressor as fixed linear maps of the posed vertices and joints.
+
+    Probes ``regressor(BodyOutput)`` with autograd: ``kp = Wv @ vertices + Wj @ joints``.
+    Returns ``(Wv (133,V), Wj (133,55))`` float64, or None when the regressor is not of that
+    form (checked on a random pose to ``tol_m`` metres), e.g. when it depends on the transforms
+    or selects landmarks by head pose.
+    """
+    from signsplat.body.model import BodyOutput
+
+    ref = model.v_template
+    with torch.no_grad():
+        out = model()
+    verts = out.vertices.detach().clone().requires_grad_(True)
+    joints = out.joints.detach().clone().requires_grad_(True)
+    kp = regressor(BodyOutput(verts, joints, out.transforms.detach(), out.v_shaped.detach()))
+    n = kp.shape[1]
+    Wv = np.zeros((n, verts.shape[1]))
+    Wj = np.zeros((n, joints.shape[1]))
+    for k in range(n):
+        gv, gj = torch.autograd.grad(kp[0, k, 0], (verts, joints), retain_graph=True,
+                                     allow_unused=True)
+        if gv is not None:
+            Wv[k] = gv[0, :, 0].double().cpu().numpy()
+        if gj is not None:
+            Wj[k] = gj[0, :, 0].double().cpu().numpy()
+    # check on a random pose (also catches weights that differ between x, y, z)
+    g = torch.Generator().manual_seed(seed)
+    B = 2
+    rnd = lambda k, s: (torch.randn(B, k, generator=g) * s).to(ref)  # noqa: E731
+    with torch.no_grad():
+        test = model(global_orient=rnd(3, 0.5), body_pose=rnd(63, 0.3), jaw_pose=rnd(3, 0.2),
+                     left_hand_pose=rnd(45, 0.3), right_hand_pose=rnd(45, 0.3),
+                     betas=rnd(model.num_betas, 1.0), transl=rnd(3, 0.5))
+        want = regressor(test).double().cpu().numpy()
+    got = (np.einsum("kv,bvc->bkc", Wv, test.vertices.double().cpu().numpy())
+           + np.einsum("kj,bjc->bkc", Wj, test.joints.double().cpu().numpy()))
+    if not np.isfinite(got).all() or np.abs(got - want).max() > tol_m:
+        return None
+    return Wv, Wj
+
+
 class KeypointModel(torch.nn.Module):
     """Body model + whole-body regressor: parameters -> joints (B,55,3), keypoints (B,133,3).
 
     ``model`` is a :class:`signsplat.body.model.BodyModel`, ``regressor`` a
     :class:`signsplat.body.keypoints.WholeBodyRegressor` built on it. All outputs are metres in
     the fit's world frame.
+
+    When the regressor is a fixed linear map of vertices and joints (probed once by
+    :func:`linearise_regressor`), the fit's forward pass only skins the few vertices the
+    keypoints use (exactly the same LBS, with the model's own kinematics), which is ~50x faster
+    than posing all vertices. ``forward(full=True)`` always runs the full model.
     """
 
-    def __init__(self, model, regressor):
+    def __init__(self, model, regressor, fast: bool = True):
         super().__init__()
         self.model = model
         self.regressor = regressor
+        self.fast = False
+        if fast:
+            lin = linearise_regressor(model, regressor)
+            if lin is not None:
+                self._build_sparse(*lin)
+                self.fast = True
 
-    def forward(self, **inputs) -> tuple[torch.Tensor, torch.Tensor, object]:
+    def _build_sparse(self, Wv: np.ndarray, Wj: np.ndarray) -> None:
+        m = self.model
+        ref = m.v_template
+        used = np.nonzero(np.abs(Wv).sum(0) > 0)[0]
+        S = len(used)
+        idx = torch.as_tensor(used, device=ref.device)
+        self.register_buffer("_Wv", torch.as_tensor(Wv[:, used], dtype=ref.dtype, device=ref.device))
+        self.register_buffer("_Wj", torch.as_tensor(Wj, dtype=ref.dtype, device=ref.device))
+        self.register_buffer("_v_template", m.v_template[idx])
+        self.register_buffer("_shapedirs", m.shapedirs[idx])
+        V = m.v_template.shape[0]
+        cols = (idx[:, None] * 3 + torch.arange(3, device=ref.device)).reshape(-1)
+        self.register_buffer("_posedirs", m.posedirs[:, cols])
+        self.register_buffer("_weights", m.lbs_weights[idx])
+        self.register_buffer("_J_template", m.J_regressor @ m.v_template)
+        self.register_buffer("_J_dirs", torch.einsum("jv,vkl->jkl", m.J_regressor, m.shapedirs))
+        self._num_sparse = S
+        assert V >= S
+
+    def _sparse_forward(self, inputs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        from signsplat.body.model import axis_angle_to_matrix, rigid_transforms, skin_points
+
+        m = self.model
+        ref = self._v_template
+        B = max([v.shape[0] for v in inputs.values() if v is not None] + [1])
+
+        def blk(name, size):
+            v = inputs.get(name)
+            if v is None:
+                return ref.new_zeros(B, size)
+            v = v.to(ref.dtype)
+            if v.shape[-1] < size:
+                v = torch.cat([v, v.new_zeros(v.shape[0], size - v.shape[-1])], -1)
+            return v.expand(B, size)
+
+        lh, rh = blk("left_hand_pose", 45), blk("right_hand_pose", 45)
+        if m.hand_mean == "mano":
+            lh, rh = lh + m.hands_mean_l, rh + m.hands_mean_r
+        pose = torch.cat([blk("global_orient", 3), blk("body_pose", 63), blk("jaw_pose", 3),
+                          blk("leye_pose", 3), blk("reye_pose", 3), lh, rh], 1).reshape(B, -1, 3)
+        coeffs = torch.cat([blk("betas", m.num_betas), blk("expression", m.num_expression)], 1)
+        transl = blk("transl", 3)
+        v_shaped = self._v_template + torch.einsum("bl,vkl->bvk", coeffs, self._shapedirs)
+        rest_joints = self._J_template + torch.einsum("bl,jkl->bjk", coeffs, self._J_dirs)
+        rotmats = axis_angle_to_matrix(pose)
+        eye = torch.eye(3, dtype=ref.dtype, device=ref.device)
+        feat = (rotmats[:, 1:] - eye).reshape(B, -1)
+        v_posed = v_shaped + (feat @ self._posedirs).reshape(B, -1, 3)
+        levels = [getattr(m, f"_level{i}") for i in range(m._num_levels)]
+        joints, A = rigid_transforms(rotmats, rest_joints, m.parents, levels)
+        verts = skin_points(v_posed, self._weights, A, transl)
+        joints = joints + transl[:, None]
+        kp = torch.einsum("ks,bsc->bkc", self._Wv, verts) + torch.einsum("kj,bjc->bkc",
+                                                                         self._Wj, joints)
+        return joints, kp
+
+    def forward(self, full: bool = False, **inputs) -> tuple[torch.Tensor, torch.Tensor, object]:
+        """-> (joints (B,55,3), keypoints (B,133,3), BodyOutput or None on the fast path)."""
+        if self.fast and not full:
+            joints, kp = self._sparse_forward(inputs)
+            return joints, kp, None
         out = self.model(**inputs)
         return out.joints, self.regressor(out), out

@@ -50,9 +50,10 @@ def load_keypoint_model(body_path: str | os.PathLike, num_betas: int, num_expres
 
     model = BodyModel.from_file(body_path, num_betas=num_betas,
                                 num_expression=num_expression).to(device)
-    return KeypointModel(model, WholeBodyRegressor(model).to(device)
-                         if isinstance(WholeBodyRegressor(model), torch.nn.Module)
-                         else WholeBodyRegressor(model))
+    regressor = WholeBodyRegressor(model)
+    if isinstance(regressor, torch.nn.Module):
+        regressor = regressor.to(device)
+    return KeypointModel(model, regressor)
 
 
 def clean_all(obs: np.ndarray, times: np.ndarray, heights: np.ndarray, cfg: dict
@@ -159,7 +160,7 @@ def keypoints_of(kpm: KeypointModel, params: dict[str, np.ndarray], batch: int =
         for s in range(0, T, batch):
             inp = {n: torch.as_tensor(np.asarray(params[n][s:s + batch]), dtype=ref.dtype,
                                       device=ref.device) for n in names if n in params}
-            j, k, out = kpm(**inp)
+            j, k, out = kpm(full=True, **inp)
             js.append(j.double().cpu().numpy())
             ks.append(k.double().cpu().numpy())
             vs.append(out.vertices.double().cpu().numpy())

@@ -21,11 +21,11 @@ import numpy as np
 import torch
 
 from signsplat.body import joints as J
-from signsplat.fit import objective as obj
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams, Rig, pnp, rig_prior
-from signsplat.fit.solver import Problem, Stage, run_stage, run_warm_started
+from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
+                                  run_warm_started)
 
 log = logging.getLogger(__name__)
 
@@ -120,11 +120,9 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
              np.round(rms, 2).tolist())
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
-                       device=device)
-    problem = Problem(kpm=kpm, obs=torch.as_tensor(obs, dtype=dtype, device=device),
-                      weights=obj.Weights.from_config(cfg["weights"]),
-                      kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"],
-                      contiguous=torch.as_tensor(seq.contiguous_triplets(frames), device=device))
+                       device=device, init={"body_pose": rest_body_pose(cfg, T)})
+    problem = make_problem(kpm, obs, cfg, frames, weights={"upright": mv["upright_weight"]},
+                           dtype=dtype, device=device)
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

@@ -31,6 +31,7 @@ class Weights:
     smooth_pose: float = 10.0  # rad^-2 on pose-parameter accelerations
     behind_camera: float = 100.0  # m^-2 on depth below the near plane
     anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
+    upright: float = 0.0  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
 
     @classmethod
     def from_config(cls, cfg: dict | None) -> "Weights":
@@ -107,10 +108,40 @@ def smoothness(kp3d: torch.Tensor, pose: torch.Tensor, contiguous: torch.Tensor 
     return terms.sum() / T
 
 
-def priors(params, w: Weights, pose_w: torch.Tensor) -> torch.Tensor:
-    """Pose, shape, face and hand priors of :class:`~signsplat.fit.bodyfit.FitParams`, per frame."""
+def rest_pose_vector(rest_pose: dict[str, list[float]] | None, dtype=torch.float32,
+                     device="cpu") -> torch.Tensor:
+    """Body-pose prior mean (63,) from ``{joint name: axis-angle}`` (other joints 0)."""
+    out = torch.zeros(J.NUM_BODY_JOINTS * 3, dtype=dtype, device=device)
+    for name, aa in (rest_pose or {}).items():
+        if name not in J.JOINT_INDEX or not 1 <= J.JOINT_INDEX[name] <= J.NUM_BODY_JOINTS:
+            raise ValueError(f"rest_pose: {name!r} is not a body joint (joints 1..21 of "
+                             "signsplat.body.joints.SMPLX_JOINT_NAMES)")
+        j = J.JOINT_INDEX[name] - 1
+        out[3 * j:3 * j + 3] = torch.as_tensor(aa, dtype=dtype)
+    return out
+
+
+def upright(global_orient: torch.Tensor) -> torch.Tensor:
+    """Sum over frames of |R(global_orient) e_y - e_y|^2 (pelvis tilt away from world up)."""
+    import roma
+
+    up = roma.rotvec_to_rotmat(global_orient)[..., :, 1]
+    e = torch.zeros_like(up)
+    e[..., 1] = 1.0
+    return ((up - e) ** 2).sum()
+
+
+def priors(params, w: Weights, pose_w: torch.Tensor, pose_mean: torch.Tensor | None = None
+           ) -> torch.Tensor:
+    """Pose, shape, face and hand priors of :class:`~signsplat.fit.bodyfit.FitParams`, per frame.
+
+    ``pose_mean (63,)``: the body-pose prior mean (default zeros, the T-pose).
+    """
     T = max(params.num_frames, 1)
-    loss = (pose_w * params.body_pose ** 2).sum() / T
+    dev = params.body_pose if pose_mean is None else params.body_pose - pose_mean
+    loss = (pose_w * dev ** 2).sum() / T
+    if w.upright > 0:
+        loss = loss + w.upright * upright(params.global_orient) / T
     loss = loss + w.shape * (params.betas ** 2).sum()
     loss = loss + w.expression * (params.expression ** 2).sum() / T
     loss = loss + w.jaw * (params.jaw_pose ** 2).sum() / T

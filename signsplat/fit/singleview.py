@@ -32,7 +32,8 @@ from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams, Rig, pnp
 from signsplat.fit.multiview import PNP_KEYPOINTS, median_observation, neutral_keypoints
-from signsplat.fit.solver import Problem, Stage, run_stage, run_warm_started
+from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
+                                  run_warm_started)
 
 log = logging.getLogger(__name__)
 
@@ -124,14 +125,12 @@ class NeutralPoseInitialiser:
         params = FitParams(H, self.kpm.model.num_betas, self.kpm.model.num_expression,
                            dtype=self.dtype, device=self.device,
                            init={"global_orient": np.stack([r[0] for r in roots]),
-                                 "transl": np.stack([r[1] for r in roots])})
+                                 "transl": np.stack([r[1] for r in roots]),
+                                 "body_pose": rest_body_pose(self.cfg, H)})
         cams = CameraParams(_camera_rig(K, width, height), fixed=[0], dtype=self.dtype,
                             device=self.device)
-        w = obj.Weights.from_config(self.cfg["weights"])
-        problem = Problem(kpm=self.kpm, obs=torch.as_tensor(obs_h, dtype=self.dtype,
-                                                           device=self.device),
-                          weights=w, kernel=self.cfg["robust"]["kernel"],
-                          sigma_px=self.cfg["robust"]["sigma_px"])
+        problem = make_problem(self.kpm, obs_h, self.cfg, dtype=self.dtype, device=self.device)
+        w = problem.weights
         stage = Stage(name="hypotheses", iterations=sv["hypothesis_iterations"],
                       lr=sv["hypothesis_lr"], groups=("root",), smooth=False)
         run_stage(problem, params, cams, stage)
@@ -160,15 +159,13 @@ class NeutralPoseInitialiser:
         params = FitParams(T, self.kpm.model.num_betas, self.kpm.model.num_expression,
                            dtype=self.dtype, device=self.device,
                            init={"global_orient": np.repeat(go[None], T, 0),
-                                 "transl": np.repeat(tr[None], T, 0)})
+                                 "transl": np.repeat(tr[None], T, 0),
+                                 "body_pose": rest_body_pose(self.cfg, T)})
         cams = CameraParams(_camera_rig(K, width, height), fixed=[0], dtype=self.dtype,
                             device=self.device)
         fitted, _ = seq.fitted_mask(obs[None], self.cfg["min_keypoints"])
-        problem = Problem(kpm=self.kpm, obs=torch.as_tensor(obs[None], dtype=self.dtype,
-                                                            device=self.device),
-                          weights=obj.Weights.from_config(self.cfg["weights"]),
-                          kernel=self.cfg["robust"]["kernel"],
-                          sigma_px=self.cfg["robust"]["sigma_px"])
+        problem = make_problem(self.kpm, obs[None], self.cfg, dtype=self.dtype,
+                               device=self.device)
         for st_cfg in sv["init_stages"]:
             run_warm_started(problem, params, cams, Stage.from_config(st_cfg), sv["chunk"],
                              fitted)
@@ -197,18 +194,15 @@ def fit_singleview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: n
         initialiser = INITIALISERS[sv["initialiser"]](kpm, cfg, device, dtype)
     init = initialiser(obs, K, width, height)
     t_init = time.perf_counter()
+    init = dict(init)
+    if "betas" in init:
+        init["betas"] = np.asarray(init["betas"])[:1]
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
-                       device=device, init={k: (np.repeat(v[:1], T, 0)[:1] if k == "betas"
-                                                else v) for k, v in init.items()})
+                       device=device, init=init)
     cams = CameraParams(_camera_rig(K, width, height), fixed=[0], dtype=dtype, device=device)
-    anchor = {k: torch.as_tensor(init[k], dtype=dtype, device=device)
-              for k in ("global_orient", "body_pose", "transl") if k in init}
-    problem = Problem(kpm=kpm, obs=torch.as_tensor(obs[None], dtype=dtype, device=device),
-                      weights=obj.Weights.from_config({**cfg["weights"],
-                                                       "anchor": sv["anchor_weight"]}),
-                      kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"],
-                      contiguous=torch.as_tensor(seq.contiguous_triplets(frames), device=device),
-                      anchor=anchor)
+    anchor = {k: init[k] for k in ("global_orient", "body_pose", "transl") if k in init}
+    problem = make_problem(kpm, obs[None], cfg, frames, anchor=anchor,
+                           weights={"anchor": sv["anchor_weight"]}, dtype=dtype, device=device)
     for st_cfg in sv["refine_stages"]:
         run_stage(problem, params, cams, Stage.from_config(st_cfg))
     filled, prov = seq.fill_gaps(params.export(), fitted)

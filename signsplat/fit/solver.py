@@ -36,6 +36,8 @@ class Stage:
     lr_scale: dict[str, float] = field(default_factory=dict)  # per group, relative to lr
     smooth: bool = True
     final_lr_fraction: float = 0.05
+    sigma_px: float | None = None  # robust-kernel scale of this stage (None: the problem's)
+    optimizer: str = "adam"  # adam (cosine-decayed lr) or lbfgs (strong Wolfe line search)
 
     @classmethod
     def from_config(cls, cfg: dict) -> "Stage":
@@ -47,7 +49,8 @@ class Stage:
         return cls(name=cfg["name"], iterations=int(cfg["iterations"]), lr=float(cfg["lr"]),
                    groups=groups, parts=dict(cfg.get("parts", {})),
                    lr_scale=dict(cfg.get("lr_scale", {})), smooth=bool(cfg.get("smooth", True)),
-                   final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)))
+                   final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)),
+                   sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"))
 
 
 @dataclass
@@ -64,6 +67,39 @@ class Problem:
     sigma_px: float = 10.0
     contiguous: torch.Tensor | None = None
     anchor: dict[str, torch.Tensor] = field(default_factory=dict)
+    pose_mean: torch.Tensor | None = None  # (63,) body-pose prior mean
+
+
+def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
+                 anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
+                 dtype=torch.float32, device="cpu") -> Problem:
+    """A :class:`Problem` from the ``fit`` config section.
+
+    obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
+    confidence 0. ``weights`` overrides entries of ``cfg['weights']``.
+    """
+    obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
+    valid = getattr(kpm.regressor, "valid", None)
+    if valid is not None:
+        obs_t[..., 2] = obs_t[..., 2] * valid.to(device=device, dtype=dtype)
+    contig = None
+    if frames is not None:
+        from signsplat.fit.sequence import contiguous_triplets
+
+        contig = torch.as_tensor(contiguous_triplets(np.asarray(frames)), device=device)
+    return Problem(
+        kpm=kpm, obs=obs_t,
+        weights=obj.Weights.from_config({**cfg["weights"], **(weights or {})}),
+        kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"], contiguous=contig,
+        anchor={k: torch.as_tensor(v, dtype=dtype, device=device)
+                for k, v in (anchor or {}).items()},
+        pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device))
+
+
+def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
+    """(T,63) initial body pose: the config's rest pose (prior mean) for every frame."""
+    return np.repeat(obj.rest_pose_vector(cfg.get("rest_pose"), torch.float64).numpy()[None],
+                     T, axis=0)
 
 
 def _pose_vector(params: FitParams, sel) -> torch.Tensor:
@@ -80,12 +116,13 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     _, kp3d, _ = problem.kpm(**inputs)
     K, R, t = cams()
     kpw = obj.part_weight_vector(stage.parts, dtype=dt, device=dev)
+    sigma = problem.sigma_px if stage.sigma_px is None else stage.sigma_px
     data, behind = obj.reprojection(kp3d, K, R, t, problem.obs[:, sel], kpw, problem.kernel,
-                                    problem.sigma_px)
+                                    sigma)
     terms = {"data": w.reprojection * data, "behind": w.behind_camera * behind}
     pose_w = obj.body_pose_weights(w, dtype=dt, device=dev)
     sub = _SubParams(params, sel)
-    terms["prior"] = obj.priors(sub, w, pose_w)
+    terms["prior"] = obj.priors(sub, w, pose_w, problem.pose_mean)
     if stage.smooth:
         contig = None if problem.contiguous is None else _contig(problem.contiguous, sel,
                                                                  kp3d.shape[0])
@@ -134,6 +171,8 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     if stage.iterations <= 0:
         return []
     groups = _param_groups(params, cams, stage)
+    if stage.optimizer == "lbfgs":
+        return _run_lbfgs(problem, params, cams, stage, sel, groups)
     opt = torch.optim.Adam(groups)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
@@ -156,7 +195,41 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
                     torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
         opt.step()
         history.append(float(loss.detach()))
+    log.debug("stage %s terms: %s", stage.name,
+              {k: round(float(v.detach()), 3) for k, v in terms.items()})
     log.debug("stage %s: loss %.4g -> %.4g", stage.name, history[0], history[-1])
+    return history
+
+
+def _sanitize_grads(tensors) -> None:
+    for p in tensors:
+        if p.grad is not None:
+            torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
+               sel: slice, groups: list[dict]) -> list[float]:
+    """L-BFGS with a strong-Wolfe line search over all of the stage's tensors (one group;
+    ``lr_scale`` rescales nothing here). ``iterations`` bounds the L-BFGS iterations."""
+    tensors = [p for g in groups for p in g["params"]]
+    opt = torch.optim.LBFGS(tensors, lr=stage.lr, max_iter=stage.iterations,
+                            max_eval=int(stage.iterations * 1.25) + 1, history_size=30,
+                            tolerance_grad=1e-10, tolerance_change=1e-12,
+                            line_search_fn="strong_wolfe")
+    history: list[float] = []
+
+    def closure():
+        opt.zero_grad(set_to_none=True)
+        terms = loss_terms(problem, params, cams, stage, sel)
+        loss = sum(terms.values())
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"stage {stage.name}: non-finite loss")
+        loss.backward()
+        _sanitize_grads(tensors)
+        history.append(float(loss.detach()))
+        return loss
+
+    opt.step(closure)
     return history
 
 
