@@ -94,10 +94,11 @@ JOINT_LIMITS_DEG: dict[str, tuple[tuple[float, float] | None, ...]] = {
     "thumb3": (None, None, (-15.0, 80.0)),
 }
 
-#: Rest direction of the left thumb (unit, rest frame): forward (+z) and outward (+x).
-#: The right thumb is its mirror image. :func:`hand_limits` accepts another direction, e.g.
-#: measured from a body model's joints (thumb1 -> thumb3).
-LEFT_THUMB_DIRECTION = (0.7071067811865476, 0.0, 0.7071067811865476)
+#: Rest direction of the left thumb (unit, rest frame): forward (+z), outward (+x) and a little
+#: down, as thumb1 -> thumb3 of the procedural proxy (0.044, -0.009, 0.059). The right thumb is
+#: its mirror image. :func:`hand_limits` accepts another direction, e.g. measured from a body
+#: model's joints (see :func:`thumb_direction_from_joints`).
+LEFT_THUMB_DIRECTION = (0.5934, -0.1214, 0.7957)
 
 _MIRROR = np.diag([-1.0, 1.0, 1.0])
 
@@ -109,6 +110,15 @@ def _side_signs(side: str) -> np.ndarray:
     if side == "right":
         return np.array([1.0, -1.0, 1.0])
     raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+
+
+def thumb_direction_from_joints(joints, side: str = "left") -> np.ndarray:
+    """Unit rest direction (3,) of a thumb from rest joint positions (55, 3) (thumb1 -> thumb3)."""
+    from signsplat.body.joints import JOINT_INDEX
+
+    j = np.asarray(joints, dtype=np.float64)
+    d = j[JOINT_INDEX[f"{side}_thumb3"]] - j[JOINT_INDEX[f"{side}_thumb1"]]
+    return d / np.linalg.norm(d)
 
 
 def thumb_frame(direction, side: str = "left") -> np.ndarray:

@@ -3,14 +3,17 @@ and an analytic two-bone arm IK.
 
 Everything here is numpy (float64) and deterministic. Positions are metres in the body frame
 of the SMPL-X rest pose with the pelvis joint at the origin: y up, the signer faces +z, the
-signer's left is +x (see docs/architecture.md). The numbers are those of an average adult
-(close to the SMPL-X neutral template and the procedural proxy); the library is built against
-this skeleton so that it does not depend on a body-model file.
+signer's left is +x (see docs/architecture.md). The numbers are those of the procedural proxy
+(``signsplat.body.proxy``, itself close to the SMPL-X neutral template): joints measured from
+its rest skeleton, face and chest points from its surface. The library is built against this
+fixed skeleton so that it does not depend on a body-model file; another body of similar
+proportions places the hands within a few centimetres of the same points.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -29,17 +32,17 @@ class Skeleton:
     """
 
     shoulder: tuple = (0.175, 0.47, -0.025)
-    elbow: tuple = (0.435, 0.47, -0.025)
-    wrist: tuple = (0.685, 0.47, -0.025)
+    elbow: tuple = (0.43, 0.47, -0.035)
+    wrist: tuple = (0.68, 0.47, -0.03)
     face: dict = field(default_factory=lambda: {
-        "forehead": (0.0, 0.80, 0.095), "temple": (0.06, 0.77, 0.05),
-        "eye": (0.032, 0.745, 0.085), "nose": (0.0, 0.71, 0.115),
-        "mouth": (0.0, 0.665, 0.10), "chin": (0.0, 0.625, 0.085),
-        "cheek": (0.055, 0.69, 0.075), "ear": (0.08, 0.72, -0.005),
-        "neck": (0.0, 0.555, 0.05), "chest": (0.0, 0.37, 0.125),
-        "chest_side": (0.10, 0.38, 0.115), "shoulder_front": (0.16, 0.46, 0.06),
-        "stomach": (0.0, 0.17, 0.13), "neutral": (0.0, 0.30, 0.34),
-        "neutral_side": (0.13, 0.31, 0.32), "high": (0.0, 0.60, 0.36),
+        "forehead": (0.0, 0.755, 0.085), "temple": (0.058, 0.725, 0.055),
+        "eye": (0.031, 0.691, 0.078), "nose": (0.0, 0.655, 0.108),
+        "mouth": (0.0, 0.619, 0.097), "chin": (0.0, 0.585, 0.082),
+        "cheek": (0.05, 0.645, 0.072), "ear": (0.083, 0.67, -0.005),
+        "neck": (0.0, 0.53, 0.05), "chest": (0.0, 0.37, 0.12),
+        "chest_side": (0.10, 0.38, 0.11), "shoulder_front": (0.16, 0.46, 0.06),
+        "stomach": (0.0, 0.17, 0.115), "neutral": (0.0, 0.30, 0.34),
+        "neutral_side": (0.13, 0.31, 0.32), "high": (0.0, 0.58, 0.36),
         "low": (0.0, 0.10, 0.30), "rest": (0.20, 0.02, 0.10),
     })
 
@@ -62,15 +65,15 @@ STANDARD = Skeleton()
 # Left-hand rest joint positions relative to the left wrist (hand frame = rest frame), SMPL-X
 # hand-joint order, plus fingertips. Palm faces -y, fingers +x, thumb towards +z.
 HAND_JOINTS_REST = np.array([
-    [0.088, 0.004, 0.026], [0.121, 0.002, 0.028], [0.143, 0.0, 0.029],      # index
-    [0.094, 0.005, 0.003], [0.131, 0.003, 0.003], [0.156, 0.0, 0.003],      # middle
-    [0.076, -0.002, -0.036], [0.100, -0.003, -0.039], [0.117, -0.004, -0.041],  # pinky
-    [0.087, 0.002, -0.018], [0.120, 0.0, -0.019], [0.143, -0.002, -0.020],  # ring
-    [0.022, -0.012, 0.024], [0.047, -0.017, 0.048], [0.067, -0.020, 0.068],  # thumb
+    [0.09, -0.004, 0.026], [0.13, -0.004, 0.031], [0.154, -0.004, 0.033],      # index
+    [0.094, -0.004, 0.005], [0.138, -0.004, 0.006], [0.166, -0.004, 0.006],    # middle
+    [0.08, -0.005, -0.032], [0.112, -0.005, -0.038], [0.131, -0.005, -0.041],  # pinky
+    [0.089, -0.004, -0.015], [0.13, -0.004, -0.018], [0.157, -0.004, -0.02],   # ring
+    [0.022, -0.01, 0.022], [0.047, -0.015, 0.055], [0.066, -0.019, 0.081],     # thumb
 ])
 TIP_OFFSETS = np.array([  # joint 3 -> fingertip, per finger (index, middle, pinky, ring, thumb)
-    [0.022, -0.002, 0.001], [0.024, -0.002, 0.0], [0.018, -0.002, -0.002],
-    [0.022, -0.002, -0.001], [0.020, -0.003, 0.020],
+    [0.022, 0.0, 0.002], [0.023, 0.0, 0.0], [0.02, 0.0, -0.003], [0.022, 0.0, -0.002],
+    [0.017, -0.003, 0.022],
 ])
 FINGER_ORDER = ("index", "middle", "pinky", "ring", "thumb")
 #: Named points on a (left, rest) hand that are not joints, relative to the wrist.
@@ -158,31 +161,45 @@ ELBOW_POLE = np.array([0.45, -1.0, -0.35])  # left arm: elbow points down, out a
 
 
 def arm_ik(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
-           skel: Skeleton = STANDARD, max_twist: float = np.radians(110.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           skel: Skeleton = STANDARD, max_twist: float = np.radians(110.0),
+           swivel: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """See :func:`arm_ik_matrices`; returns local axis-angles (T, 3) of shoulder, elbow, wrist."""
+    mats = arm_ik_matrices(wrist_target, hand_rot, side, skel, max_twist, swivel)
+    return tuple(Rotation.from_matrix(r).as_rotvec() for r in mats)
+
+
+def arm_ik_matrices(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
+                    skel: Skeleton = STANDARD, max_twist: float = np.radians(110.0),
+                    swivel: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Analytic two-bone IK of one arm, vectorised over frames.
 
-    The shoulder joint turns the upper arm towards the elbow, the elbow is a hinge about the
-    upper arm's local y axis (as in the SMPL-X T-pose, palm down) followed by the forearm
-    twist about the bone (up to ``max_twist`` radians), and the wrist takes the remaining swing. The elbow swivel follows a fixed pole
-    (down, out, back). Collar and spine stay at rest. Unreachable targets are pulled in.
+    The shoulder joint turns the upper arm towards the elbow with the hinge axis on the upper
+    arm's local y axis (as in the SMPL-X T-pose, palm down); the elbow bends in that plane and
+    takes the forearm twist about the bone (up to ``max_twist`` radians); the wrist takes the
+    remaining swing. Rest bones may be slightly off the x axis. The elbow swivel follows a pole
+    (down, out, back) turned by ``swivel`` radians about the shoulder-wrist axis. Collar and
+    spine stay at rest. Unreachable targets are pulled in.
 
     Args:
         wrist_target: (T, 3) wrist positions, body frame.
         hand_rot: (T, 3, 3) world rotations of the hand (see :func:`hand_rotation`).
         side: 'left' or 'right'.
     Returns:
-        Local axis-angle of shoulder, elbow and wrist, each (T, 3).
+        Local rotation matrices of shoulder, elbow and wrist, each (T, 3, 3).
     """
     m = _MIRROR if side == "right" else np.ones(3)
     S = np.asarray(skel.shoulder) * m
     L1, L2 = skel.upper_arm, skel.forearm
-    d_vec = wrist_target - S
+    d_vec = np.asarray(wrist_target, float) - S
     d = np.linalg.norm(d_vec, axis=-1)
     u = d_vec / np.maximum(d, 1e-9)[:, None]
     d = np.clip(d, abs(L1 - L2) + 0.02, L1 + L2 - 1e-4)
     pole = ELBOW_POLE * m
     v = pole[None] - u * (u @ pole)[:, None]
     v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    if swivel:
+        sgn = 1.0 if side == "left" else -1.0  # mirror-symmetric swivel
+        v = Rotation.from_rotvec(u * (sgn * swivel)).apply(v)
     cos_a = np.clip((L1 ** 2 + d ** 2 - L2 ** 2) / (2 * L1 * d), -1.0, 1.0)
     sin_a = np.sqrt(1.0 - cos_a ** 2)
     a_dir = cos_a[:, None] * u + sin_a[:, None] * v  # upper arm direction
@@ -193,26 +210,96 @@ def arm_ik(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
     sin_phi = np.linalg.norm(k, axis=-1)
     phi = np.arctan2(sin_phi, np.sum(a_dir * f_dir, axis=-1))
     k = k / np.maximum(sin_phi, 1e-9)[:, None]
-    # shoulder frame: x-axis -> bone direction (rest bone is +x left, -x right), y -> hinge
+    # ideal shoulder frame: x-axis -> bone direction (rest bone +x left, -x right), y -> hinge
     if side == "left":
-        x_axis, y_axis, hinge_sign = a_dir, -k, -1.0
+        x_axis, y_axis = a_dir, -k
     else:
-        x_axis, y_axis, hinge_sign = -a_dir, k, 1.0
-    R_s = np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=-1)
-    hinge = Rotation.from_rotvec(np.array([0.0, 1.0, 0.0]) * (hinge_sign * phi)[:, None])
-    R_h = R_s @ hinge.as_matrix()
+        x_axis, y_axis = -a_dir, k
+    R_ideal = np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=-1)
+    # the rest bones need not lie exactly on the x axis: correct by the minimal rotation that
+    # takes the ideal bone axis to the rest upper-arm bone, so R_s @ e1 = L1 * a_dir exactly
+    e1 = (np.asarray(skel.elbow) - skel.shoulder) * m
+    e2 = (np.asarray(skel.wrist) - skel.elbow) * m
+    axis = np.array([1.0, 0.0, 0.0]) * (1.0 if side == "left" else -1.0)
+    R_s = R_ideal @ _min_rotation(tuple(axis), tuple(e1)).T
+    # elbow: minimal rotation taking the rest forearm bone to the target forearm direction
+    # (in the upper-arm frame this is the hinge), then the forearm twist about the bone
+    g = np.einsum("tji,tj->ti", R_s, f_dir)
+    e2n = e2 / np.linalg.norm(e2)
+    R_hinge = _min_rotations(e2n, g)
+    R_h = R_s @ R_hinge
     # forearm twist (pronation/supination): the twist part of the remaining rotation about
-    # the forearm axis (local x) goes to the elbow, the swing part to the wrist
+    # the forearm bone goes to the elbow, the swing part to the wrist
     rem = Rotation.from_matrix(np.swapaxes(R_h, -1, -2) @ hand_rot).as_quat()  # xyzw
-    tau = 2.0 * np.arctan2(rem[:, 0], rem[:, 3])
+    tau = 2.0 * np.arctan2(rem[:, :3] @ e2n, rem[:, 3])
     tau = (tau + np.pi) % (2.0 * np.pi) - np.pi
     tau = np.clip(tau, -max_twist, max_twist)
-    R_e_local = hinge.as_matrix() @ Rotation.from_rotvec(
-        np.array([1.0, 0.0, 0.0]) * tau[:, None]).as_matrix()
+    R_e_local = R_hinge @ Rotation.from_rotvec(e2n[None] * tau[:, None]).as_matrix()
     R_e = R_s @ R_e_local
     R_w_local = np.swapaxes(R_e, -1, -2) @ hand_rot
-    return (Rotation.from_matrix(R_s).as_rotvec(), Rotation.from_matrix(R_e_local).as_rotvec(),
-            Rotation.from_matrix(R_w_local).as_rotvec())
+    return R_s, R_e_local, R_w_local
+
+
+@lru_cache(maxsize=64)
+def _min_rotation(a: tuple, b: tuple) -> np.ndarray:
+    """Rotation matrix (3,3) of the smallest rotation taking direction ``a`` to ``b``."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis)
+    if s < 1e-12:
+        if a @ b > 0:
+            return np.eye(3)
+        return Rotation.from_rotvec(np.pi * _any_perp(a)).as_matrix()
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, a @ b)).as_matrix()
+
+
+def _min_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotations (T,3,3) taking direction ``a`` (3,) to each of ``b`` (T,3)
+    (vectorised; antiparallel cases use :func:`_min_rotation`)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    axis = np.cross(a[None], b)
+    s = np.linalg.norm(axis, axis=-1)
+    c = b @ a
+    rotvec = axis / np.maximum(s, 1e-12)[:, None] * np.arctan2(s, c)[:, None]
+    out = Rotation.from_rotvec(rotvec).as_matrix()
+    for i in np.nonzero((s < 1e-9) & (c < 0))[0]:
+        out[i] = _min_rotation(tuple(a), tuple(b[i]))
+    return out
+
+
+def _any_perp(a: np.ndarray) -> np.ndarray:
+    p = np.cross(a, [0.0, 1.0, 0.0]) if abs(a[1]) < 0.9 else np.cross(a, [1.0, 0.0, 0.0])
+    return p / np.linalg.norm(p)
+
+
+def wrist_swing(wrist_aa: np.ndarray) -> np.ndarray:
+    """Angle (T,) in radians of the wrist rotation left after :func:`arm_ik`'s twist."""
+    return np.linalg.norm(wrist_aa, axis=-1)
+
+
+def best_swivel(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
+                skel: Skeleton = STANDARD, max_swivel: float = np.radians(70.0),
+                steps: int = 11, stride: int = 2) -> float:
+    """The elbow swivel (radians, one value for the whole track so the motion stays smooth)
+    that keeps the wrist least bent: minimises the largest wrist swing over the frames (every
+    ``stride``-th) plus a small preference for the default pole and a penalty on elbows
+    raised towards shoulder height."""
+    best, best_cost = 0.0, np.inf
+    m = _MIRROR if side == "right" else np.ones(3)
+    shoulder_y = (np.asarray(skel.shoulder) * m)[1]
+    e1 = (np.asarray(skel.elbow) - skel.shoulder) * m
+    idx = np.unique(np.r_[np.arange(0, len(wrist_target), stride), len(wrist_target) - 1])
+    for sw in np.linspace(-max_swivel, max_swivel, steps):
+        rs, _, rw = arm_ik_matrices(wrist_target[idx], hand_rot[idx], side, skel, swivel=sw)
+        swing = np.arccos(np.clip((np.trace(rw, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0))
+        elbow_y = shoulder_y + (rs @ e1)[:, 1]
+        cost = (swing.max() + 0.15 * abs(sw)
+                + 8.0 * np.maximum(elbow_y - shoulder_y + 0.12, 0.0).max())
+        if cost < best_cost - 1e-9:
+            best, best_cost = float(sw), cost
+    return best
 
 
 def arm_fk(shoulder_aa, elbow_aa, wrist_aa, side: str, skel: Skeleton = STANDARD):

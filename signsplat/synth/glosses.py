@@ -37,8 +37,11 @@ from signsplat.synth._gloss_signs import LETTERS, REST, SIGNS, Hand, Move, Sign,
 BLOCK_SIZES = {"body_pose": 63, "left_hand_pose": 45, "right_hand_pose": 45, "jaw_pose": 3,
                "expression": 10}
 #: Meaning of the expression coefficients the library drives (index into ``expression``).
+#: The proxy's expression directions (``signsplat.body._proxy_rig.EXPRESSION_NAMES``) use the
+#: same indices; for a real SMPL-X model the PCA directions differ and these are only small
+#: plausible offsets.
 EXPRESSION_INDEX = {"jaw_open": 0, "smile": 1, "brow_raise": 2, "brow_furrow": 3,
-                    "lip_round": 4, "frown": 5, "cheek_puff": 6, "eye_squint": 7}
+                    "eyes_close": 4, "cheek_puff": 5, "lip_round": 6, "frown": 9}
 DOMINANT = "right"
 SOURCE = "signsplat.synth.glosses (procedural)"
 LICENCE = "CC0-1.0"
@@ -240,7 +243,8 @@ def build_gloss(sign: Sign, seed: int = 0, fps: float = 25.0,
         raise ValueError(f"{sign.gloss}: bad nondom {sign.nondom!r}")
     body = np.zeros((n, 63))
     for track in (dom, nd):
-        arm = gb.arm_ik(track.wrist, track.rot, track.side, skel)
+        swivel = gb.best_swivel(track.wrist, track.rot, track.side, skel)
+        arm = gb.arm_ik(track.wrist, track.rot, track.side, skel, swivel=swivel)
         for joint, aa in zip(("shoulder", "elbow", "wrist"), arm):
             slot = gb.BODY_SLOT[f"{track.side}_{joint}"]
             body[:, slot:slot + 3] = aa

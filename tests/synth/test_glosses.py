@@ -123,3 +123,59 @@ def test_handshape_names_and_movement_errors():
         handshape_angles("nope")
     with pytest.raises(ValueError, match="unknown movement"):
         G.movement_offsets(G.Move("wobble"), "right", np.linspace(0, 1, 5))
+
+
+def test_proxy_lbs_agrees_with_gloss_kinematics(proxy_body_path, library):
+    """Posing the proxy body model with gloss frames puts wrists and finger joints where the
+    library's own kinematics (standard skeleton, analytic IK, hand FK) put them."""
+    import torch
+
+    from signsplat.body.joints import JOINT_INDEX
+    from signsplat.body.model import BodyModel
+
+    model = BodyModel.from_file(proxy_body_path, dtype=torch.float64)
+    clips = G.clips_from_table(library)
+    pelvis = model().joints[0, 0].numpy()
+    worst = 0.0
+    for name in ("HELLO", "BOOK", "MOTHER", "WHERE", "A", "M"):
+        clip = clips[name]
+        p = {b: torch.as_tensor(clip.poses[b], dtype=torch.float64)
+             for b in ("body_pose", "left_hand_pose", "right_hand_pose", "jaw_pose")}
+        joints = model(**p).joints.numpy() - pelvis
+        body = clip.poses["body_pose"].astype(np.float64)
+        for side in ("left", "right"):
+            sl = lambda j: body[:, gb.BODY_SLOT[f"{side}_{j}"]:gb.BODY_SLOT[f"{side}_{j}"] + 3]
+            wrist, rot = gb.arm_fk(sl("shoulder"), sl("elbow"), sl("wrist"), side)
+            worst = max(worst, np.abs(joints[:, JOINT_INDEX[f"{side}_wrist"]] - wrist).max())
+            hand = clip.poses[f"{side}_hand_pose"].astype(np.float64)
+            for f in range(0, clip.num_frames, 3):
+                pts = gb.hand_points(hand[f], side)
+                for j in ("index3", "thumb3", "pinky3"):
+                    pred = wrist[f] + rot[f] @ pts[j]
+                    worst = max(worst, np.abs(joints[f, JOINT_INDEX[f"{side}_{j}"]] - pred).max())
+    assert worst < 0.002, worst
+
+
+def test_flexion_moves_proxy_fingertips_to_the_palm_side(proxy_body_path):
+    """Positive anatomical flexion (hand_limits) curls every finger towards -y on both hands."""
+    import torch
+
+    from signsplat.body import hand_limits as hl
+    from signsplat.body.joints import JOINT_INDEX
+    from signsplat.body.model import BodyModel
+
+    model = BodyModel.from_file(proxy_body_path, dtype=torch.float64)
+    rest = model().joints[0].numpy()
+    for side in ("left", "right"):
+        lim = hl.hand_limits(side)
+        ang = torch.zeros(15, 3, dtype=torch.float64)
+        ang[:, 2] = 0.6  # flex every joint, thumb included
+        pose = hl.anatomical_to_axis_angle(ang, lim)[None]
+        joints = model(**{f"{side}_hand_pose": pose}).joints[0].numpy()
+        for finger in ("index", "middle", "ring", "pinky", "thumb"):
+            j = JOINT_INDEX[f"{side}_{finger}3"]
+            assert joints[j, 1] - rest[j, 1] < -0.01, (side, finger)
+        # thumb frame from the proxy's own joints matches the default
+        d = hl.thumb_direction_from_joints(rest, side)
+        default = np.array(hl.LEFT_THUMB_DIRECTION) * ([-1, 1, 1] if side == "right" else 1)
+        assert d @ default > 0.999
