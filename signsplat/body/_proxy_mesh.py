@@ -23,14 +23,16 @@ def prim_sdf(p: Prim, x: np.ndarray) -> np.ndarray:
         b = np.asarray(p.b)
         ab = b - a
         L2 = float(ab @ ab)
-        t = np.clip(((x - a) @ ab) / L2, 0.0, 1.0)
-        d = np.linalg.norm(x - a - t[:, None] * ab, axis=1)
-        return d - (p.r1 + (p.r2 - p.r1) * t)
+        xa = x - a
+        t = np.clip((xa @ ab) / L2, 0.0, 1.0)
+        xa -= t[:, None] * ab
+        return np.sqrt(np.einsum("ij,ij->i", xa, xa)) - (p.r1 + (p.r2 - p.r1) * t)
     if p.kind == "ell":
         r = np.asarray(p.b)
         q = (x - a) / r
-        k0 = np.linalg.norm(q, axis=1)
-        k1 = np.linalg.norm(q / r, axis=1)
+        k0 = np.sqrt(np.einsum("ij,ij->i", q, q))
+        q /= r
+        k1 = np.sqrt(np.einsum("ij,ij->i", q, q))
         return k0 * (k0 - 1.0) / np.maximum(k1, 1e-12)
     if p.kind == "box":
         q = np.abs(x - a) - np.asarray(p.b)
@@ -78,7 +80,7 @@ def dense_mesh(prims: list[Prim], h: float = 0.002, block: int = 16,
     dc = np.full(len(centres), 1.0)
     for p in prims:  # unclipped union at the centres, to bound distances
         dc = smin(dc, prim_sdf(p, centres), p.k)
-    keep = np.abs(dc) < 1.5 * half_diag + 0.004
+    keep = np.abs(dc) < 1.2 * half_diag + 0.003
     blo = lo + idx * h * block
     bhi = blo + h * block
     verts_all, faces_all, keys_all = [], [], []
@@ -111,7 +113,9 @@ def dense_mesh(prims: list[Prim], h: float = 0.002, block: int = 16,
     verts = np.concatenate(verts_all)
     faces = np.concatenate(faces_all)
     keys = np.concatenate(keys_all)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    # pack (node i, j, k, axis) into one int64 (indices < 2**20)
+    packed = ((keys[:, 0] * (1 << 20) + keys[:, 1]) * (1 << 20) + keys[:, 2]) * 4 + keys[:, 3]
+    _, first, inverse = np.unique(packed, return_index=True, return_inverse=True)
     verts = verts[first]
     faces = inverse.reshape(-1)[faces]
     # drop faces made degenerate by the merge
@@ -131,14 +135,13 @@ def clean_mesh(verts: np.ndarray, faces: np.ndarray):
     return verts[used], faces
 
 
-def project_to_surface(prims: list[Prim], x: np.ndarray, iters: int = 3) -> np.ndarray:
+def project_to_surface(prims: list[Prim], x: np.ndarray, iters: int = 2) -> np.ndarray:
     """Move points onto the zero level of the body SDF (Newton steps along the gradient)."""
-    eps = 1e-5
+    eps = 1e-6
     x = x.copy()
     for _ in range(iters):
         f = body_sdf(prims, x)
-        g = np.stack([(body_sdf(prims, x + e) - body_sdf(prims, x - e)) / (2 * eps)
-                      for e in np.eye(3) * eps], axis=1)
+        g = np.stack([(body_sdf(prims, x + e) - f) / eps for e in np.eye(3) * eps], axis=1)
         g2 = np.maximum((g * g).sum(axis=1), 1e-8)
         step = (f / g2)[:, None] * g
         # never move by more than 2 mm in one step

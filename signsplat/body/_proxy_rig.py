@@ -106,7 +106,7 @@ def bone_frames(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def skinning_weights(verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
-                     joints: np.ndarray, smooth_iters: int = 4) -> np.ndarray:
+                     joints: np.ndarray, smooth_iters: int = 8) -> np.ndarray:
     """Smooth LBS weights (V, 55): blend across each joint's plane, then smooth on the mesh.
 
     owner (V,) is the joint whose primitive is nearest to each vertex. A vertex owned by bone b
@@ -156,6 +156,12 @@ def skinning_weights(verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
     total = W[:, head] + W[:, jaw]
     W[:, jaw] = total * w_jaw
     W[:, head] = total * (1.0 - w_jaw)
+    W = np.maximum(W, 0.0)
+    W /= W.sum(axis=1, keepdims=True)
+    A = vertex_neighbours(faces, V)
+    for _ in range(smooth_iters):
+        W = 0.5 * W + 0.5 * (A @ W)
+    # eyeballs after smoothing: the cap turns with the eye, the lids stay with the head
     for e in (JI["left_eye"], JI["right_eye"]):
         W[:, head] += W[:, e]
         W[:, e] = 0.0
@@ -163,11 +169,6 @@ def skinning_weights(verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
         w_eye = smoothstep((0.0128 - d) / 0.0012) * (p[:, 2] > joints[e][2])
         W *= (1.0 - w_eye)[:, None]
         W[:, e] = w_eye
-    W = np.maximum(W, 0.0)
-    W /= W.sum(axis=1, keepdims=True)
-    A = vertex_neighbours(faces, V)
-    for _ in range(smooth_iters):
-        W = 0.5 * W + 0.5 * (A @ W)
     W[W < 1e-4] = 0.0
     return W / W.sum(axis=1, keepdims=True)
 

@@ -72,7 +72,9 @@ def params_to_table(params: dict[str, Tensor | np.ndarray], scene: str,
         T = len(frames) if frames is not None else 1
     if frames is None:
         frames = np.arange(T)
-    frames = as_np(frames).astype(np.int64) if not isinstance(frames, np.ndarray) else frames
+    if isinstance(frames, Tensor):
+        frames = frames.detach().cpu().numpy()
+    frames = np.asarray(frames, dtype=np.int64)
     if len(frames) != T:
         raise ValueError(f"{len(frames)} frame numbers for {T} frames")
     data: dict[str, list] = {"scene": [scene] * T, "frame": np.asarray(frames, np.int32)}
