@@ -68,7 +68,7 @@ def colmap_compare(argv: list[str]) -> int:
     table, points, colors = compare_scene(
         frames, Path(args.frames).parent, cameras, cfg, threads=args.threads, ply_dir=ply_dir,
         table_dir=out.parent, fit_cameras=fit_cameras, fit_eval=fit_eval,
-        work_root=args.work_dir,
+        work_root=args.work_dir, cameras_source=args.cameras,
     )
     write_table(table, out, "colmap_compare", metadata={
         "config": json.dumps(cfg.describe()),

@@ -186,7 +186,8 @@ def plan_runs(frames: pd.DataFrame, cfg: CompareConfig) -> list[RunSpec]:
 class GroundTruth:
     """Ground-truth cameras by (view, frame); a static camera (frame -1) serves every frame."""
 
-    def __init__(self, cameras: pd.DataFrame):
+    def __init__(self, cameras: pd.DataFrame, source: str = "cameras table"):
+        self.source = str(source)
         self._rows = {}
         for row in cameras.itertuples(index=False):
             self._rows[(int(row.view), int(row.frame))] = row
@@ -194,7 +195,7 @@ class GroundTruth:
     def row(self, view: int, frame: int):
         row = self._rows.get((view, frame)) or self._rows.get((view, -1))
         if row is None:
-            raise InputError(f"cameras table has no camera for view {view}, frame {frame}")
+            raise InputError(f"{self.source}: no camera for view {view}, frame {frame}")
         return row
 
     def K(self, view: int, frame: int) -> np.ndarray:
@@ -334,7 +335,7 @@ def compare_scene(frames: pd.DataFrame, frames_dir: str | os.PathLike, cameras: 
                   cfg: CompareConfig, threads: int = 1, ply_dir: str | os.PathLike | None = None,
                   table_dir: str | os.PathLike | None = None,
                   fit_cameras: pd.DataFrame | None = None, fit_eval: pd.DataFrame | None = None,
-                  work_root: str | os.PathLike | None = None):
+                  work_root: str | os.PathLike | None = None, cameras_source: str = "cameras"):
     """Run every planned COLMAP run on a scene; returns (table DataFrame, best points, colors).
 
     ``ply_dir``: where each successful run's points go (world frame, after the alignment);
@@ -343,7 +344,7 @@ def compare_scene(frames: pd.DataFrame, frames_dir: str | os.PathLike, cameras: 
     """
     frames_dir = Path(frames_dir)
     scene = str(frames["scene"].iloc[0]) if len(frames) else "scene"
-    gt = GroundTruth(cameras)
+    gt = GroundTruth(cameras, cameras_source)
     rows, best = [], (np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
     for spec in plan_runs(frames, cfg):
         images = image_inputs(frames, frames_dir, gt, spec.keys)

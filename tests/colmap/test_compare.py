@@ -171,3 +171,13 @@ def test_module_entry_point_runs_isolated_children(flat_rig, tmp_path):
     assert len(df) == 1 and df["status"].iloc[0].startswith("failed")
     assert "colmap_static_frame_0" in proc.stdout  # the table is printed at the end
     assert "Elapsed time" in proc.stderr or "SIFT" in proc.stderr  # pycolmap's log is kept
+
+
+def test_ground_truth_without_a_camera_names_the_file(textured_rig):
+    from signsplat.colmap.compare import GroundTruth
+
+    cams = read_table(textured_rig / "cameras.parquet", "cameras")
+    gt = GroundTruth(cams[cams["view"] != 3], "cams.parquet")
+    with pytest.raises(InputError, match="cams.parquet: no camera for view 3"):
+        gt.pose(3, 0)
+    np.testing.assert_allclose(gt.pose(2, 17)[1], cams[cams["view"] == 2]["t"].iloc[0])
