@@ -102,7 +102,12 @@ def ease_in_out(s: np.ndarray | torch.Tensor):
 
 def _quats(aa: np.ndarray) -> torch.Tensor:
     """(k,) flat axis-angle -> (k/3, 4) unit quaternions (xyzw), float64."""
-    return roma.rotvec_to_unitquat(torch.as_tensor(aa, dtype=torch.float64).reshape(-1, 3))
+    return roma.rotvec_to_unitquat(_t64(aa).reshape(-1, 3))
+
+
+def _t64(x) -> torch.Tensor:
+    """float64 tensor copy of an array (library arrays may be read-only)."""
+    return torch.from_numpy(np.array(x, dtype=np.float64))
 
 
 def max_angle_deg(pose_a: dict[str, np.ndarray], pose_b: dict[str, np.ndarray]) -> float:
@@ -110,8 +115,8 @@ def max_angle_deg(pose_a: dict[str, np.ndarray], pose_b: dict[str, np.ndarray]) 
     worst = 0.0
     for block in ROTATION_BLOCKS:
         if block in pose_a and block in pose_b:
-            a = torch.as_tensor(pose_a[block], dtype=torch.float64).reshape(-1, 3)
-            b = torch.as_tensor(pose_b[block], dtype=torch.float64).reshape(-1, 3)
+            a = _t64(pose_a[block]).reshape(-1, 3)
+            b = _t64(pose_b[block]).reshape(-1, 3)
             d = roma.rotvec_geodesic_distance(a, b)
             worst = max(worst, float(d.max()) if d.numel() else 0.0)
     return math.degrees(worst)
@@ -158,7 +163,7 @@ def mean_rotation(aa: np.ndarray) -> np.ndarray:
     """Chordal L2 mean (3,) of axis-angle rotations (N, 3) (projected mean of matrices)."""
     if len(aa) == 0:
         return np.zeros(3)
-    m = roma.rotvec_to_rotmat(torch.as_tensor(aa, dtype=torch.float64)).mean(0)
+    m = roma.rotvec_to_rotmat(_t64(aa)).mean(0)
     return roma.rotmat_to_rotvec(roma.special_procrustes(m)).numpy()
 
 
