@@ -13,6 +13,8 @@ so a real SMPL-X template can be textured by passing its rest joints.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from signsplat.body import joints as JN
@@ -83,6 +85,7 @@ def albedo(points: np.ndarray, part_labels: np.ndarray, seed: int = 0,
     return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=1)
 def _default_joints_grounded() -> np.ndarray:
     """Rest joints of the proxy as written (feet on y = 0)."""
     from signsplat.body._proxy_skeleton import GROUND_SHIFT, rest_joints
@@ -142,9 +145,11 @@ def _head_colour(p: np.ndarray, j: np.ndarray, pal: dict) -> np.ndarray:
     le, re = j[JI["left_eye"]], j[JI["right_eye"]]
     eye_y = 0.5 * (le[1] + re[1])
     eye_z = 0.5 * (le[2] + re[2])
-    # hair: above the brows' top at the front rising to the crown, and the back of the head
-    hairline = eye_y + 0.045 - 0.06 * np.clip((eye_z - z) / 0.08, 0, 1)
-    hair = (y > hairline) | ((z < eye_z - 0.085) & (y > eye_y - 0.06))
+    # hair: the hairline runs from above the brows at the front down to the nape at the back,
+    # passing over the ears on the sides (the ears themselves stay skin)
+    back = np.clip((eye_z - 0.02 - z) / 0.10, 0.0, 1.0)
+    hairline = eye_y + 0.042 - 0.095 * back
+    hair = (y > hairline) & ((np.abs(x) < 0.074) | (y > eye_y + 0.03))
     out[hair] = pal["hair"]
     # eyebrows: arcs 2.3 cm above the eye centres
     for e in (le, re):
@@ -178,49 +183,61 @@ def _head_colour(p: np.ndarray, j: np.ndarray, pal: dict) -> np.ndarray:
     return out
 
 
-def _hand_colour(p: np.ndarray, j: np.ndarray, pal: dict, side: str) -> np.ndarray:
-    skin = pal["skin"]
-    out = np.empty((len(p), 3))
-    out[:] = skin
-    wrist = j[JI[f"{side}_wrist"]]
-    # palm side (below the bone plane) slightly lighter
-    palm = p[:, 1] < wrist[1] - 0.004
-    out[palm] = 0.9 * skin + 0.1
-    best = np.full(len(p), np.inf)
-    t_best = np.zeros(len(p))
-    seg_best = np.full(len(p), -1)
-    segs = []
-    for finger in ("thumb", "index", "middle", "ring", "pinky"):
+_FINGERS_COCO = ("thumb", "index", "middle", "ring", "pinky")
+
+
+@functools.lru_cache(maxsize=8)
+def _hand_segments(jkey: bytes, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Finger segments of one hand: starts (15, 3), ends (15, 3), segment rank k (15,)."""
+    j = np.frombuffer(jkey, dtype=np.float64).reshape(-1, 3)
+    A, B, K = [], [], []
+    for finger in _FINGERS_COCO:
         ids = [JI[f"{side}_{finger}{k}"] for k in (1, 2, 3)]
-        a = j[ids[2]]
-        d = a - j[ids[1]]
-        d = d / np.linalg.norm(d)
-        tip = a + 0.022 * d
+        d = j[ids[2]] - j[ids[1]]
+        tip = j[ids[2]] + 0.022 * d / np.linalg.norm(d)
         pts = [j[ids[0]], j[ids[1]], j[ids[2]], tip]
         for k in range(3):
-            segs.append((pts[k], pts[k + 1], k, finger))
-    for si, (a, b, k, finger) in enumerate(segs):
-        ab = b - a
-        L2 = ab @ ab
-        t = np.clip(((p - a) @ ab) / L2, 0.0, 1.0)
-        dist = np.linalg.norm(p - a - t[:, None] * ab, axis=1)
-        m = dist < best
-        best[m], t_best[m], seg_best[m] = dist[m], t[m], si
-    dorsal = p[:, 1] > wrist[1] - 0.002
-    for si, (a, b, k, finger) in enumerate(segs):
-        m = seg_best == si
-        if not m.any():
-            continue
-        L = np.linalg.norm(b - a)
-        s = t_best[m] * L  # distance along the segment from its proximal joint
-        if k == 2:  # fingernail on the back of the distal segment
-            nail = dorsal[m] & (s > L - 0.012) & (s < L - 0.0015) & (p[m, 1] > a[1] + 0.002)
-            col = out[m]
-            col[nail] = 0.6 * skin + 0.4 * np.array([1.0, 0.85, 0.85])
-            out[m] = col
-        if k > 0:  # knuckle crease lines near the proximal joint of segments 2 and 3
-            crease = (np.abs(s - 0.0) < 0.0012) | (np.abs(s - 0.003) < 0.0008)
-            col = out[m]
-            col[crease] = 0.75 * skin
-            out[m] = col
+            A.append(pts[k])
+            B.append(pts[k + 1])
+            K.append(k)
+    return np.array(A), np.array(B), np.array(K)
+
+
+def _dot3(P: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """P (N, 3) . M (K, 3) -> (N, K) by broadcasting (BLAS threads stall on this shape)."""
+    return P[:, :1] * M[:, 0] + P[:, 1:2] * M[:, 1] + P[:, 2:3] * M[:, 2]
+
+
+def _hand_colour(p: np.ndarray, j: np.ndarray, pal: dict, side: str) -> np.ndarray:
+    skin = pal["skin"]
+    wrist = j[JI[f"{side}_wrist"]]
+    A, B, K = _hand_segments(np.ascontiguousarray(j, dtype=np.float64).tobytes(), side)
+    # nearest finger segment of every point (N, 15), in float32 for speed
+    # |P - A - t AB|^2 expanded into matrix products (N, 15)
+    P = p.astype(np.float32)
+    A32, AB = A.astype(np.float32), (B - A).astype(np.float32)
+    L2 = (AB * AB).sum(1)
+    PA = (P * P).sum(1)[:, None] - 2.0 * _dot3(P, A32) + (A32 * A32).sum(1)[None]
+    proj = _dot3(P, AB) - (A32 * AB).sum(1)[None]
+    t = np.clip(proj / L2, 0.0, 1.0)
+    dist = PA - 2.0 * t * proj + t * t * L2
+    seg = dist.argmin(axis=1)
+    rows = np.arange(len(p))
+    L = np.sqrt(L2)[seg]
+    s = t[rows, seg] * L  # distance from the segment's proximal joint along the finger
+    k = K[seg]
+    dorsal_h = P[:, 1] - A32[seg, 1]  # height above the finger axis (palms face -y)
+    out = np.empty((len(p), 3))
+    out[:] = skin
+    palm = P[:, 1] < wrist[1] - 0.004
+    out[palm] = 0.9 * skin + 0.1
+    # fingernails: back of the distal segment, last ~1 cm before the tip
+    nail = (k == 2) & (s > L - 0.0125) & (s < L - 0.0015) & (dorsal_h > 0.0025)
+    out[nail] = 0.55 * skin + 0.45 * np.array([1.0, 0.86, 0.86])
+    edge = nail & (s > L - 0.0035)
+    out[edge] = 0.3 * skin + 0.7 * np.array([1.0, 0.97, 0.94])
+    # knuckle creases: two thin lines at the middle and end joints, a fold at the base
+    crease = (k > 0) & ((s < 0.0012) | (np.abs(s - 0.003) < 0.0007))
+    crease |= (k == 0) & (np.abs(s - 0.006) < 0.0009) & (dorsal_h < 0)
+    out[crease] = 0.72 * skin
     return out
