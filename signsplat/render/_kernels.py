@@ -827,9 +827,33 @@ def bin_fill(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, offsets, 
 
 
 # ----------------------------------------------------------------------------- compositing
-# A tile is kept in flat per-pixel buffers (index p = row * 16 + column). Each Gaussian of the
-# tile's depth-sorted list is evaluated over the rows its bounding box covers, as one flat loop
-# over those pixels, which LLVM vectorises (AVX2/AVX-512) with masked stores.
+# A tile lives in ONE flat buffer of per-pixel fields (field f of pixel p at f * 256 + p), so
+# LLVM sees constant distances between the fields and vectorises the 16-pixel row loops without
+# runtime alias checks. Each Gaussian of the tile's depth-sorted list is evaluated row by row
+# over the rows of its bounding box, skipping rows whose pixels are all finished and rows whose
+# slice of the alpha >= 1/255 ellipse misses the tile (both tests are conservative: they only
+# skip pairs that would be skipped anyway). The first four channels are composited inside the
+# row loop; channels beyond four (rare) in extra passes.
+
+NP = TILE * TILE
+# forward fields
+_F_T = 0      # transmittance; 0 once the pixel is finished
+_F_TF = 1     # final transmittance of finished pixels
+_F_LAST = 2   # index (relative to the tile's list) of the last Gaussian composited, -1: none
+_F_PX = 3     # pixel centre x
+_F_PY = 4     # pixel centre y
+_F_W = 5      # weight alpha * T of the current Gaussian (for channels >= 4)
+_F_ACC = 6    # accumulated channels
+# backward fields
+_B_T = 0      # transmittance in front of the current Gaussian (recovered back to front)
+_B_Q = 1      # sum of w_j <v_C, c_j> behind, plus background and alpha terms
+_B_LAST = 2
+_B_PX = 3
+_B_PY = 4
+_B_W = 5
+_B_GD = 6     # <v_C, c> over channels >= 4
+_B_VC = 7     # dL/d render_colors per channel
+
 
 @njit(cache=True, inline="always")
 def _row_range(my, ry, y0, height):
@@ -846,6 +870,28 @@ def _row_range(my, ry, y0, height):
     return lo, hi
 
 
+@njit(cache=True, inline="always")
+def _row_misses(dy, mx, x0, cb, inv_ca, s_c, level, T):
+    """True when, on the row at vertical offset ``dy = my - py``, the ellipse
+    ``sigma <= level`` lies entirely outside the tile's pixel centres (1 px margin)."""
+    smin = T(0.5) * dy * dy * s_c
+    if smin > level:
+        return True
+    h = math.sqrt(T(2.0) * (level - smin) * inv_ca)
+    centre = mx + cb * dy * inv_ca
+    return centre + h < T(x0) - T(0.5) or centre - h > T(x0 + TILE) + T(0.5)
+
+
+@njit(cache=True, inline="always")
+def _level(op, ca, cb, cc, T):
+    """sigma level of alpha = 1/255 (slightly enlarged), 1 / a and the Schur complement
+    c - b^2 / a used by :func:`_row_misses`."""
+    level = math.log(max(op, T(ALPHA_THRESHOLD)) / T(ALPHA_THRESHOLD)) * T(1.001) + T(1e-3)
+    inv_ca = T(1.0) / ca
+    s_c = max(cc - cb * cb * inv_ca, T(0.0))
+    return level, inv_ca, s_c
+
+
 @kernel
 def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
@@ -856,39 +902,40 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     [C*N], colors [C*N or N, D]. Outputs: out_color [C, H, W, D] (background included),
     out_T [C, H, W] final transmittance, out_last [C, H, W] index (into flat_ids) of the last
     Gaussian composited (-1: none), pair_counts[tile] = (pixel, Gaussian) pairs evaluated.
-    Finished pixels carry T = 0 (their final T is kept in ``Tfin``), so they drop out of the
-    ``valid`` mask without a branch.
+    Finished pixels carry T = 0 (their final T is kept in another field), so they drop out of
+    the ``valid`` mask without a branch.
     """
     D = out_color.shape[3]
+    DI = min(D, 4)
     n_tiles = tiles_x * tiles_y
     C = out_color.shape[0]
-    NP = TILE * TILE
     thr = T(ALPHA_THRESHOLD)
     amax = T(MAX_ALPHA)
     tthr = T(TRANSMITTANCE_THRESHOLD)
-    for tid in prange(C * n_tiles):
+    nf = _F_ACC + max(D, 4)
+    for tid_ in prange(C * n_tiles):
+        tid = np.int64(tid_)  # prange indices may be unsigned
         c = tid // n_tiles
         tt = tid - c * n_tiles
         ty = tt // tiles_x
         tx = tt - ty * tiles_x
         x0 = tx * TILE
         y0 = ty * TILE
-        Tt = np.ones(NP, dtype=T)
-        Tfin = np.zeros(NP, dtype=T)
-        last = np.full(NP, -1, dtype=np.int32)
-        acc = np.zeros(D * NP, dtype=T)
-        wbuf = np.zeros(NP, dtype=T)
-        pxs = np.empty(NP, dtype=T)
-        pys = np.empty(NP, dtype=T)
+        xw = min(TILE, width - x0)  # row length (a runtime trip count: vectorised, not unrolled)
+        buf = np.zeros(nf * NP, dtype=T)
+        rowdone = np.zeros(TILE, dtype=np.int64)
         ndone = 0
         for y in range(TILE):
             for x in range(TILE):
                 p = y * TILE + x
-                pxs[p] = T(x0 + x) + T(0.5)
-                pys[p] = T(y0 + y) + T(0.5)
-                if y0 + y >= height or x0 + x >= width:  # outside the image: done
-                    Tt[p] = T(0.0)
+                buf[_F_PX * NP + p] = T(x0 + x) + T(0.5)
+                buf[_F_PY * NP + p] = T(y0 + y) + T(0.5)
+                buf[_F_LAST * NP + p] = T(-1.0)
+                if y0 + y >= height or x0 + x >= width:  # outside the image: finished
+                    rowdone[y] += 1
                     ndone += 1
+                else:
+                    buf[_F_T * NP + p] = T(1.0)
         npairs = 0
         start = tile_offsets[tid]
         end = tile_offsets[tid + 1]
@@ -905,44 +952,61 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             cb = conics[fi, 1]
             cc = conics[fi, 2]
             op = opacities[fi]
-            jj = np.int32(j)
-            p0 = np.uint64(lo * TILE)
-            p1 = np.uint64(hi * TILE)
-            nterm = 0
-            for p in range(p0, p1):
-                dx = mx - pxs[p]
-                dy = my - pys[p]
-                sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                al = min(amax, op * exp_neg(sig))
-                t = Tt[p]
-                valid = (sig >= T(0.0)) & (al >= thr) & (t > T(0.0))
-                nt = t * (T(1.0) - al)
-                term = valid & (nt <= tthr)
-                contrib = valid & (nt > tthr)
-                wbuf[p] = al * t if contrib else T(0.0)
-                Tt[p] = nt if contrib else (T(0.0) if term else t)
-                Tfin[p] = t if term else Tfin[p]
-                last[p] = jj if contrib else last[p]
-                nterm += np.int64(term)
+            level, inv_ca, s_c = _level(op, ca, cb, cc, T)
             ci = fi if colors_per_camera else fi % N
-            for k in range(D):
-                ck = colors[ci, k]
-                base = np.uint64(k * NP)
-                for p in range(p0, p1):
-                    acc[base + p] += wbuf[p] * ck
-            ndone += nterm
-            npairs += hi * TILE - lo * TILE
+            c0 = colors[ci, 0]
+            c1 = colors[ci, 1] if DI > 1 else T(0.0)
+            c2 = colors[ci, 2] if DI > 2 else T(0.0)
+            c3 = colors[ci, 3] if DI > 3 else T(0.0)
+            jr = T(j - start)
+            for y in range(lo, hi):
+                if rowdone[y] >= TILE:
+                    continue
+                if _row_misses(my - (T(y0 + y) + T(0.5)), mx, x0, cb, inv_ca, s_c, level, T):
+                    continue
+                npairs += TILE
+                nterm = 0
+                pb = np.uint64(y * TILE)
+                pe = pb + np.uint64(xw)
+                for p in range(pb, pe):
+                    dx = mx - buf[_F_PX * NP + p]
+                    dy = my - buf[_F_PY * NP + p]
+                    sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    al = min(amax, op * exp_neg(sig))
+                    t = buf[_F_T * NP + p]
+                    valid = (sig >= T(0.0)) & (al >= thr) & (t > T(0.0))
+                    nt = t * (T(1.0) - al)
+                    term = valid & (nt <= tthr)
+                    contrib = valid & (nt > tthr)
+                    w = al * t if contrib else T(0.0)
+                    buf[_F_T * NP + p] = nt if contrib else (T(0.0) if term else t)
+                    buf[_F_TF * NP + p] = t if term else buf[_F_TF * NP + p]
+                    buf[_F_LAST * NP + p] = jr if contrib else buf[_F_LAST * NP + p]
+                    buf[_F_W * NP + p] = w
+                    buf[(_F_ACC + 0) * NP + p] += w * c0
+                    buf[(_F_ACC + 1) * NP + p] += w * c1
+                    buf[(_F_ACC + 2) * NP + p] += w * c2
+                    buf[(_F_ACC + 3) * NP + p] += w * c3
+                    nterm += np.int64(term)
+                for k in range(4, D):
+                    ck = colors[ci, k]
+                    for p in range(pb, pe):
+                        buf[(_F_ACC + k) * NP + p] += buf[_F_W * NP + p] * ck
+                rowdone[y] += nterm
+                ndone += nterm
         pair_counts[tid] = npairs
         ymax = min(TILE, height - y0)
         xmax = min(TILE, width - x0)
         for y in range(ymax):
             for x in range(xmax):
                 p = y * TILE + x
-                tf = Tt[p] + Tfin[p]
+                tf = buf[_F_T * NP + p] + buf[_F_TF * NP + p]
                 out_T[c, y0 + y, x0 + x] = tf
-                out_last[c, y0 + y, x0 + x] = last[p]
+                lr = buf[_F_LAST * NP + p]
+                out_last[c, y0 + y, x0 + x] = np.int32(start + np.int64(lr)) if lr >= T(0.0) \
+                    else np.int32(-1)
                 for k in range(D):
-                    val = acc[k * NP + p]
+                    val = buf[(_F_ACC + k) * NP + p]
                     if has_bg:
                         val += tf * backgrounds[c, k]
                     out_color[c, y0 + y, x0 + x, k] = val
@@ -962,12 +1026,14 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     Compiled with ``reassoc`` so these sums vectorise (this only reorders additions).
     """
     D = v_color.shape[3]
+    DI = min(D, 4)
     n_tiles = tiles_x * tiles_y
     C = v_color.shape[0]
-    NP = TILE * TILE
     thr = T(ALPHA_THRESHOLD)
     amax = T(MAX_ALPHA)
-    for tid in prange(C * n_tiles):
+    nf = _B_VC + max(D, 4)
+    for tid_ in prange(C * n_tiles):
+        tid = np.int64(tid_)  # prange indices may be unsigned
         th = numba.get_thread_id()
         start = tile_offsets[tid]
         end = tile_offsets[tid + 1]
@@ -981,48 +1047,42 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
         y0 = ty * TILE
         ymax = min(TILE, height - y0)
         xmax = min(TILE, width - x0)
-        Tc = np.zeros(NP, dtype=T)
-        Q = np.zeros(NP, dtype=T)
-        vC = np.zeros(D * NP, dtype=T)
-        last = np.full(NP, -1, dtype=np.int64)
+        xw = xmax  # row length (a runtime trip count: vectorised, not unrolled)
+        buf = np.zeros(nf * NP, dtype=T)
         rowmax = np.full(TILE, -1, dtype=np.int64)
-        gdot = np.zeros(NP, dtype=T)
-        wbuf = np.zeros(NP, dtype=T)
-        pxs = np.empty(NP, dtype=T)
-        pys = np.empty(NP, dtype=T)
         for y in range(TILE):
             for x in range(TILE):
-                pxs[y * TILE + x] = T(x0 + x) + T(0.5)
-                pys[y * TILE + x] = T(y0 + y) + T(0.5)
+                p = y * TILE + x
+                buf[_B_PX * NP + p] = T(x0 + x) + T(0.5)
+                buf[_B_PY * NP + p] = T(y0 + y) + T(0.5)
+                buf[_B_LAST * NP + p] = T(-1.0)
         jmax = -1
         for y in range(ymax):
             for x in range(xmax):
                 p = y * TILE + x
                 tf = final_T[c, y0 + y, x0 + x]
-                Tc[p] = tf
-                li = last_ids[c, y0 + y, x0 + x]
-                last[p] = li
+                buf[_B_T * NP + p] = tf
+                li = np.int64(last_ids[c, y0 + y, x0 + x])
+                if li >= 0:
+                    buf[_B_LAST * NP + p] = T(li - start)
                 if li > rowmax[y]:
                     rowmax[y] = li
                 # Q_init = T_N (<v_C, bg> - v_A): alphas = 1 - T_N
                 q = -v_alpha[c, y0 + y, x0 + x]
                 for k in range(D):
                     vk = v_color[c, y0 + y, x0 + x, k]
-                    vC[k * NP + p] = vk
+                    buf[(_B_VC + k) * NP + p] = vk
                     if has_bg:
                         q += vk * backgrounds[c, k]
-                Q[p] = tf * q
+                buf[_B_Q * NP + p] = tf * q
             if rowmax[y] > jmax:
                 jmax = rowmax[y]
         if jmax < start:
             continue
+        vcol = np.zeros(D, dtype=T)
         for j in range(jmax, start - 1, -1):
             fi = flat_ids[j]
             lo, hi = _row_range(float(means2d[fi, 1]), radii[fi, 1], y0, height)
-            while lo < hi and rowmax[lo] < j:
-                lo += 1
-            while hi > lo and rowmax[hi - 1] < j:
-                hi -= 1
             if lo >= hi:
                 continue
             mx = means2d[fi, 0]
@@ -1031,16 +1091,13 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             cb = conics[fi, 1]
             cc = conics[fi, 2]
             op = opacities[fi]
+            level, inv_ca, s_c = _level(op, ca, cb, cc, T)
             ci = fi if colors_per_camera else fi % N
-            p0 = np.uint64(lo * TILE)
-            p1 = np.uint64(hi * TILE)
-            for p in range(p0, p1):
-                gdot[p] = T(0.0)
-            for k in range(D):
-                ck = colors[ci, k]
-                base = np.uint64(k * NP)
-                for p in range(p0, p1):
-                    gdot[p] += vC[base + p] * ck
+            c0 = colors[ci, 0]
+            c1 = colors[ci, 1] if DI > 1 else T(0.0)
+            c2 = colors[ci, 2] if DI > 2 else T(0.0)
+            c3 = colors[ci, 3] if DI > 3 else T(0.0)
+            jr = T(j - start)
             g_mx = T(0.0)
             g_my = T(0.0)
             g_ca = T(0.0)
@@ -1049,51 +1106,90 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             g_op = T(0.0)
             a_mx = T(0.0)
             a_my = T(0.0)
-            for p in range(p0, p1):
-                dx = mx - pxs[p]
-                dy = my - pys[p]
-                sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                G = exp_neg(sig)
-                alr = op * G
-                al = min(amax, alr)
-                valid = (last[p] >= j) & (sig >= T(0.0)) & (al >= thr)
-                ra = T(1.0) / (T(1.0) - al)
-                t = Tc[p]
-                ti = t * ra
-                w = al * ti
-                gd = gdot[p]
-                q = Q[p]
-                v_al = ti * gd - q * ra
-                Tc[p] = ti if valid else t
-                Q[p] = q + w * gd if valid else q
-                wbuf[p] = w if valid else T(0.0)
-                live = valid & (alr <= amax)
-                v_sig = -al * v_al if live else T(0.0)
-                g_op += G * v_al if live else T(0.0)
-                g_ca += T(0.5) * dx * dx * v_sig
-                g_cb += dx * dy * v_sig
-                g_cc += T(0.5) * dy * dy * v_sig
-                gx = (ca * dx + cb * dy) * v_sig
-                gy = (cb * dx + cc * dy) * v_sig
-                g_mx += gx
-                g_my += gy
-                a_mx += abs(gx)
-                a_my += abs(gy)
-            gb = gbuf[th, fi]
-            gb[0] += g_mx
-            gb[1] += g_my
-            gb[2] += g_ca
-            gb[3] += g_cb
-            gb[4] += g_cc
-            gb[5] += g_op
-            for k in range(D):
-                base = np.uint64(k * NP)
-                s = T(0.0)
-                for p in range(p0, p1):
-                    s += wbuf[p] * vC[base + p]
-                gb[6 + k] += s
-            gb[6 + D] += a_mx
-            gb[7 + D] += a_my
+            v0 = T(0.0)
+            v1 = T(0.0)
+            v2 = T(0.0)
+            v3 = T(0.0)
+            for k in range(4, D):
+                vcol[k] = T(0.0)
+            touched = False
+            for y in range(lo, hi):
+                if rowmax[y] < j:
+                    continue
+                if _row_misses(my - (T(y0 + y) + T(0.5)), mx, x0, cb, inv_ca, s_c, level, T):
+                    continue
+                touched = True
+                pb = np.uint64(y * TILE)
+                pe = pb + np.uint64(xw)
+                if D > 4:
+                    for p in range(pb, pe):
+                        buf[_B_GD * NP + p] = T(0.0)
+                    for k in range(4, D):
+                        ck = colors[ci, k]
+                        for p in range(pb, pe):
+                            buf[_B_GD * NP + p] += buf[(_B_VC + k) * NP + p] * ck
+                for p in range(pb, pe):
+                    dx = mx - buf[_B_PX * NP + p]
+                    dy = my - buf[_B_PY * NP + p]
+                    sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    G = exp_neg(sig)
+                    alr = op * G
+                    al = min(amax, alr)
+                    valid = (buf[_B_LAST * NP + p] >= jr) & (sig >= T(0.0)) & (al >= thr)
+                    ra = T(1.0) / (T(1.0) - al)
+                    t = buf[_B_T * NP + p]
+                    ti = t * ra
+                    w = al * ti if valid else T(0.0)
+                    vc0 = buf[(_B_VC + 0) * NP + p]
+                    vc1 = buf[(_B_VC + 1) * NP + p]
+                    vc2 = buf[(_B_VC + 2) * NP + p]
+                    vc3 = buf[(_B_VC + 3) * NP + p]
+                    gd = vc0 * c0 + vc1 * c1 + vc2 * c2 + vc3 * c3 + buf[_B_GD * NP + p]
+                    q = buf[_B_Q * NP + p]
+                    v_al = ti * gd - q * ra
+                    buf[_B_T * NP + p] = ti if valid else t
+                    buf[_B_Q * NP + p] = q + w * gd
+                    buf[_B_W * NP + p] = w
+                    v0 += w * vc0
+                    v1 += w * vc1
+                    v2 += w * vc2
+                    v3 += w * vc3
+                    live = valid & (alr <= amax)
+                    v_sig = -al * v_al if live else T(0.0)
+                    g_op += G * v_al if live else T(0.0)
+                    g_ca += T(0.5) * dx * dx * v_sig
+                    g_cb += dx * dy * v_sig
+                    g_cc += T(0.5) * dy * dy * v_sig
+                    gx = (ca * dx + cb * dy) * v_sig
+                    gy = (cb * dx + cc * dy) * v_sig
+                    g_mx += gx
+                    g_my += gy
+                    a_mx += abs(gx)
+                    a_my += abs(gy)
+                for k in range(4, D):
+                    s = T(0.0)
+                    for p in range(pb, pe):
+                        s += buf[_B_W * NP + p] * buf[(_B_VC + k) * NP + p]
+                    vcol[k] += s
+            if touched:
+                gb = gbuf[th, fi]
+                gb[0] += g_mx
+                gb[1] += g_my
+                gb[2] += g_ca
+                gb[3] += g_cb
+                gb[4] += g_cc
+                gb[5] += g_op
+                gb[6] += v0
+                if D > 1:
+                    gb[7] += v1
+                if D > 2:
+                    gb[8] += v2
+                if D > 3:
+                    gb[9] += v3
+                for k in range(4, D):
+                    gb[6 + k] += vcol[k]
+                gb[6 + D] += a_mx
+                gb[7 + D] += a_my
 
 
 @kernel
