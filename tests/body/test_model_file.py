@@ -113,3 +113,16 @@ def test_write_model_file_round_trip(tmp_path, make_fake_arrays):
         np.testing.assert_array_equal(np.asarray(back[key], np.float64),
                                       np.asarray(arrays[key], np.float64))
     assert not list(path.parent.glob(".*tmp*"))  # atomic: no temporary file left
+
+
+def test_optional_pickled_keys_are_skipped(tmp_path, make_fake_arrays):
+    """Official SMPLX_*.npz files store joint2num/part2num as pickled dicts: not needed."""
+    arrays = make_fake_arrays()
+    d = np.empty((), dtype=object)
+    d[()] = {"pelvis": 0}
+    arrays["joint2num"] = d
+    arrays["part2num"] = d
+    path = tmp_path / "official_like.npz"
+    np.savez(path, **arrays)
+    loaded = load_model_arrays(path)
+    assert "joint2num" not in loaded and "v_template" in loaded
