@@ -60,7 +60,7 @@ def test_simulate_rule_runs_on_the_tiny_scene(tmp_path):
     cfg.write_text(yaml.safe_dump({"results": str(tmp_path / "results"), "sequences": None,
                                    "scenes": ["tiny"]}))
     target = tmp_path / "results" / "tiny" / "sim" / "frames.parquet"
-    res = snakemake("--configfile", str(cfg), str(target))
+    res = snakemake(str(target), "--configfile", str(cfg))
     assert res.returncode == 0, res.stderr[-4000:]
     sim = target.parent
     for name in ("frames", "cameras", "smplx_gt", "keypoints_gt"):
@@ -71,5 +71,5 @@ def test_simulate_rule_runs_on_the_tiny_scene(tmp_path):
     assert "ms per frame per view" in log
     assert (tmp_path / "results" / "_benchmarks" / "tiny" / "simulate.tsv").is_file()
     # nothing left to do: a second dry run plans no job
-    res = snakemake("-n", "--configfile", str(cfg), str(target))
+    res = snakemake("-n", str(target), "--configfile", str(cfg))
     assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr

@@ -12,9 +12,10 @@ effects the scene lists (:mod:`signsplat.synth.effects`) and writes, each file a
     <out>/keypoints_gt.parquet                table 'keypoints' + 'visible' (bool), 'depth' (m)
 
 Ground-truth keypoints: the 133 COCO-WholeBody points of ``WholeBodyRegressor`` projected into
-every view; ``visible`` = inside the image and not behind the rendered surface (occluders
-included) by more than the keypoint's own rest-pose depth below the skin plus
-``render.keypoint_tolerance``; ``score`` = visible as float; ``depth`` = camera z (m).
+every view; ``visible`` = inside the image and, at its pixel or one of the 8 neighbours (silhouette
+points), not behind the rendered surface (occluders included) by more than the keypoint's own
+rest-pose depth below the skin plus ``render.keypoint_tolerance``; ``score`` = visible as
+float; ``depth`` = camera z (m).
 Same scene and seed -> byte-identical files.
 """
 
@@ -218,8 +219,12 @@ def project(points: np.ndarray, cam: Camera, near: float = 1e-6) -> tuple[np.nda
 
 
 def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
-                        tolerance: np.ndarray | float) -> np.ndarray:
+                        tolerance: np.ndarray | float, radius: int = 1) -> np.ndarray:
     """Visible keypoints: inside the image and not behind the rendered surface.
+
+    A keypoint is visible when its pixel lies in the image and some pixel within ``radius``
+    (a (2r+1)^2 window; r = 1 lets silhouette points such as fingertips and ears count) shows
+    a surface no nearer than the keypoint's depth minus the tolerance.
 
     Args:
         uv: (N, 2) pixel coordinates (NaN = behind the camera).
@@ -227,9 +232,10 @@ def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
         depth: (H, W) nearest rendered surface per pixel (m, inf = empty).
         tolerance: scalar or (N,) slack in metres (keypoints inside the body sit below the
             skin by up to this much).
+        radius: window half-size in pixels.
 
     Returns:
-        (N,) bool. A keypoint over an empty pixel is not visible (it is not on the body).
+        (N,) bool. A keypoint over empty pixels only is not visible (it is not on the body).
     """
     H, W = depth.shape
     finite = np.isfinite(uv).all(axis=1)
@@ -238,10 +244,17 @@ def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
     px[finite] = np.floor(uv[finite, 0] + 0.5).astype(np.int64)
     py[finite] = np.floor(uv[finite, 1] + 0.5).astype(np.int64)
     inside = finite & (px >= 0) & (px < W) & (py >= 0) & (py < H)
-    surf = np.full(len(uv), np.inf)
-    surf[inside] = depth[py[inside], px[inside]]
     tol = np.broadcast_to(np.asarray(tolerance, np.float64), z.shape)
-    return inside & np.isfinite(surf) & (z <= surf + tol)
+    visible = np.zeros(len(uv), bool)
+    idx = np.flatnonzero(inside)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            qx, qy = px[idx] + dx, py[idx] + dy
+            ok = (qx >= 0) & (qx < W) & (qy >= 0) & (qy < H)
+            surf = np.full(len(idx), np.inf)
+            surf[ok] = depth[qy[ok], qx[ok]]
+            visible[idx] |= np.isfinite(surf) & (z[idx] <= surf + tol[idx])
+    return visible
 
 
 # --- body ----------------------------------------------------------------------------------
