@@ -84,7 +84,8 @@ def choose_mode(cfg: dict, num_views: int) -> str:
 def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathLike | None,
             body: str | os.PathLike, *, frames: str | os.PathLike | None = None,
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
-            device: str = "cpu", fps: float = 25.0, view: int | None = None
+            device: str = "cpu", fps: float = 25.0, view: int | None = None,
+            max_frames: int | None = None
             ) -> tuple[FitResult, np.ndarray, str, KeypointModel]:
     """Load, clean and fit. Returns (result, cleaned obs (V,T,133,3), mode, keypoint model).
 
@@ -105,6 +106,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
                          "(--frames) for the image sizes")
     frame_ids = None if frames_df is None else np.unique(frames_df["frame"].to_numpy())
     obs, seq_frames = D.read_keypoints(keypoints, rig_cal.num_views, frame_ids)
+    if max_frames is not None:
+        obs, seq_frames = obs[:, :max_frames], seq_frames[:max_frames]
     if view is not None:
         if not 0 <= view < rig_cal.num_views:
             raise InputError(f"{calibration}: no view {view}")
@@ -285,6 +288,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--view", type=int, help="fit only this camera (single view)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--max-frames", type=int, help="fit only the first N frames")
     p.add_argument("--fps", type=float, default=25.0, help="when no frames table is given")
     return p
 
@@ -307,7 +311,8 @@ def fit(argv: list[str]) -> int:
                                      frames=args.frames, scene=args.scene,
                                      num_betas=args.num_betas,
                                      num_expression=args.num_expression, device=str(device),
-                                     fps=args.fps, view=args.view)
+                                     fps=args.fps, view=args.view,
+                                     max_frames=args.max_frames)
     out_dir = Path(args.out_dir)
     scene = str(result.log["scene"])
     meta = {"hand_mean": HAND_MEAN, "body_model": str(args.body), "mode": mode,

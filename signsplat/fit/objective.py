@@ -21,14 +21,15 @@ class Weights:
     """Loss weights (config section ``fit.weights``; units in brackets)."""
 
     reprojection: float = 1.0  # robust px^2 per keypoint
-    body_pose: float = 2.0  # rad^-2 on body_pose (upper body)
+    body_pose: float = 2.0  # rad^-2 on body_pose (arms, head)
+    torso_pose: float = 30.0  # rad^-2 on spine1..3, neck and collars (signers move the torso little)
     leg_pose: float = 50.0  # rad^-2 on hips/knees/ankles/feet (usually out of view)
     shape: float = 5.0  # on betas^2
     expression: float = 1.0  # on expression^2
     jaw: float = 10.0  # rad^-2 on jaw_pose
     hand_pose: float = 0.5  # rad^-2 on anatomical hand angles (pull towards the flat hand)
-    smooth_keypoints: float = 2000.0  # m^-2 on 3D keypoint accelerations
-    smooth_pose: float = 10.0  # rad^-2 on pose-parameter accelerations
+    smooth_keypoints: float = 100.0  # m^-2 on 3D keypoint accelerations
+    smooth_pose: float = 1.0  # rad^-2 on pose-parameter accelerations
     behind_camera: float = 100.0  # m^-2 on depth below the near plane
     anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
     upright: float = 0.0  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
@@ -43,6 +44,8 @@ class Weights:
         return cls(**cfg)
 
 
+TORSO_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+    "spine1", "spine2", "spine3", "neck", "left_collar", "right_collar"))
 LEG_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
     "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
     "left_foot", "right_foot"))
@@ -53,15 +56,25 @@ def body_pose_weights(w: Weights, dtype=torch.float32, device="cpu") -> torch.Te
     per_joint = torch.full((J.NUM_BODY_JOINTS,), w.body_pose, dtype=dtype, device=device)
     for j in LEG_JOINTS:
         per_joint[j - 1] = w.leg_pose
+    for j in TORSO_JOINTS:
+        per_joint[j - 1] = w.torso_pose
     return per_joint.repeat_interleave(3)
+
+
+#: COCO body keypoints of the arms (elbows, wrists): the optional part ``limbs`` reweights them
+#: (e.g. 0 while only the root is solved and the arms are still in the rest pose).
+LIMB_KEYPOINTS = (7, 8, 9, 10)
 
 
 def part_weight_vector(part_weights: dict[str, float], dtype=torch.float32,
                        device="cpu") -> torch.Tensor:
-    """Per-keypoint weights (133,) from part weights (keys of ``joints.KEYPOINT_PARTS``)."""
+    """Per-keypoint weights (133,) from part weights (keys of ``joints.KEYPOINT_PARTS``, plus
+    ``limbs`` for :data:`LIMB_KEYPOINTS`)."""
     w = torch.zeros(J.NUM_KEYPOINTS, dtype=dtype, device=device)
     for part, idx in J.KEYPOINT_PARTS.items():
         w[list(idx)] = float(part_weights.get(part, 1.0))
+    if "limbs" in part_weights:
+        w[list(LIMB_KEYPOINTS)] = float(part_weights["limbs"])
     return w
 
 
