@@ -73,9 +73,13 @@ def albedo(points: np.ndarray, part_labels: np.ndarray, seed: int = 0,
     out = np.empty((len(p), 3))
     out[:] = pal["skin"]
     body = lab == JN.PART_BODY
+    # the shirt's neckline is geometric: head-labelled neck points below it get the shirt too
+    head = lab == JN.PART_HEAD
+    low = head & (p[:, 1] < _neckline(p[:, 0], p[:, 2], j[JI["neck"]][1]))
+    body = body | low
+    head = head & ~low
     if body.any():
         out[body] = _body_colour(p[body], j, pal)
-    head = lab == JN.PART_HEAD
     if head.any():
         out[head] = _head_colour(p[head], j, pal)
     for side, part in (("left", JN.PART_LEFT_HAND), ("right", JN.PART_RIGHT_HAND)):
@@ -93,6 +97,13 @@ def _default_joints_grounded() -> np.ndarray:
     return rest_joints() + (0.0, GROUND_SHIFT, 0.0)
 
 
+def _neckline(x: np.ndarray, z: np.ndarray, neck_y: float) -> np.ndarray:
+    """Height of the shirt's top edge: a round neck, lower at the front (metres)."""
+    front = np.clip(1.0 - (x / 0.075) ** 2, 0.0, 1.0) * (z > -0.01)
+    shoulders = np.clip((np.abs(x) - 0.06) / 0.03, 0.0, 1.0)  # over the shoulder tops
+    return neck_y - 0.005 - 0.035 * front + 0.05 * shoulders
+
+
 def _body_colour(p: np.ndarray, j: np.ndarray, pal: dict) -> np.ndarray:
     x, y, z = p.T
     ax = np.abs(x)
@@ -105,7 +116,8 @@ def _body_colour(p: np.ndarray, j: np.ndarray, pal: dict) -> np.ndarray:
     out[:] = pal["skin"]
     # shirt: torso above the waistband and arms up to mid-forearm... sleeves end above elbow
     sleeve_end = sh_x + 0.8 * (el_x - sh_x)
-    shirt = (y > hip_y + 0.05) & (y < neck_y - 0.005 + 0.02 * (ax > 0.06)) & (ax < sleeve_end)
+    neckline = _neckline(x, z, neck_y)
+    shirt = (y > hip_y + 0.05) & (y < neckline) & (ax < sleeve_end)
     # gingham: stripes along two axes (period 2.4 cm), crossings darker
     per = 0.024
     # on the arms the checks follow the arm (x along, y/z across)
@@ -118,8 +130,8 @@ def _body_colour(p: np.ndarray, j: np.ndarray, pal: dict) -> np.ndarray:
     buttons = (np.abs(x) < 0.006) & (z > 0) & (np.mod(y / 0.07, 1.0) < 0.12) & (ax < 0.05)
     shirt_col[buttons] = [0.92, 0.92, 0.88]
     out[shirt] = shirt_col[shirt]
-    # collar band
-    collar = shirt & (y > neck_y - 0.045) & (ax < 0.09)
+    # collar band along the neckline
+    collar = shirt & (y > neckline - 0.012) & (ax < 0.11)
     out[collar] = 0.8 * pal["shirt"]
     # trousers below the waist, with a faint diagonal twill (period 6 mm) and belt
     trousers = y <= hip_y + 0.05

@@ -152,7 +152,7 @@ def test_finger_flexion_articulates_cleanly(model, J):
     assert moved[labels != JN.PART_LEFT_HAND].max() < 2e-3  # only the left hand moves
     assert (moved[labels == JN.PART_LEFT_HAND] > 0.01).sum() > 500
     stretch = _edge_stretch(model, out)
-    assert stretch.max() < 4.0 and stretch.min() > 0.2  # the skin over the knuckles stretches
+    assert stretch.max() < 4.0 and stretch.min() > 0.1  # dorsal skin stretches, palm folds
     # fingertips curl down (palm side, -y) and back toward the wrist
     tip = out.joints[0, JI["left_middle3"]].numpy()
     assert tip[1] < J[JI["left_middle3"], 1] - 0.03
