@@ -177,7 +177,7 @@ def _left_prims(j: np.ndarray) -> list[Prim]:
     P.append(_ell(el + (0.06, 0.0, 0.0), (0.07, 0.040, 0.042), 0.025, "left_elbow", "forearm_muscle"))
     P.append(_cone(el, wr, 0.037, 0.026, 0.02, "left_elbow", "forearm"))
     # hand: palm as a rounded box, thenar pad, fingers as round cones with knuckle spheres
-    P.append(_box(wr + (0.050, -0.004, -0.003), (0.038, 0.0065, 0.030), 0.0062, 0.010,
+    P.append(_box(wr + (0.049, -0.004, -0.003), (0.035, 0.0025, 0.0265), 0.0105, 0.010,
                   "left_wrist", "palm"))
     P.append(_ell(wr + (0.012, -0.003, 0.0), (0.022, 0.014, 0.030), 0.012, "left_wrist", "heel"))
     P.append(_ell(wr + (0.040, -0.010, 0.022), (0.030, 0.011, 0.015), 0.008, "left_wrist", "thenar"))

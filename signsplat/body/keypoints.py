@@ -6,7 +6,9 @@ Layout (``joints.COCO_WHOLEBODY_NAMES``): body 17, feet 6, face 68, left hand 21
   ears are surface vertices.
 - Feet: big toe, small toe and heel vertices.
 - Face: iBUG-68 order; points 0..16 (jaw contour) come from the frontal row (yaw 0) of the
-  model's ``dynamic_lmk_*`` table, points 17..67 from the 51 static landmarks
+  model's ``dynamic_lmk_*`` table (a fixed choice: the regressor stays one linear map of
+  vertices and joints, which the fitting stage exploits), points 17..67 from the 51 static
+  landmarks
   (``lmk_faces_idx``, ``lmk_bary_coords``), each a barycentric point of a posed face.
 - Hands: wrist joint, then per finger in COCO order (thumb, index, middle, ring, pinky) the
   three SMPL-X finger joints and a fingertip vertex. (SMPL-X's joint order within a hand is
@@ -28,7 +30,9 @@ from signsplat.body import joints as JN
 from signsplat.body.model import BodyModel, BodyOutput
 
 JI = JN.JOINT_INDEX
-FRONTAL_ROW = 39  # dynamic landmark table rows cover yaw -39..39 degrees; 39 is yaw 0
+# Rows of SMPL-X's dynamic landmark table by head yaw (smplx: row = yaw for yaw 0..39 degrees,
+# 39 - yaw for negative yaw): row 0 is the frontal contour.
+FRONTAL_ROW = 0
 
 _BODY_SOURCES = (
     ("v", "nose"), ("v", "leye"), ("v", "reye"), ("v", "lear"), ("v", "rear"),
@@ -103,7 +107,7 @@ class WholeBodyRegressor(nn.Module):
         if model.dynamic_lmk_faces_idx is not None:
             dyn_f = model.dynamic_lmk_faces_idx.cpu().numpy()
             dyn_b = model.dynamic_lmk_bary_coords.cpu().numpy()
-            row = min(FRONTAL_ROW, dyn_f.shape[0] - 1) if dyn_f.shape[0] > 1 else 0
+            row = min(FRONTAL_ROW, dyn_f.shape[0] - 1)
             for i in range(17):
                 vert_idx[face0 + i] = faces[dyn_f[row, i]]
                 vert_w[face0 + i] = dyn_b[row, i]

@@ -108,3 +108,18 @@ def test_official_layout_uses_smplx_vertex_ids(proxy_arrays, tmp_path):
 def test_small_model_without_keypoint_vertices_is_an_error(fake_path):
     with pytest.raises(ValueError, match="10,475"):
         WholeBodyRegressor(BodyModel.from_file(fake_path))
+
+
+def test_contour_uses_the_frontal_row(proxy_arrays, tmp_path):
+    """Row 0 of SMPL-X's dynamic landmark table is yaw 0 (smplx's indexing)."""
+    arrays = dict(proxy_arrays)
+    dyn = np.array(arrays["dynamic_lmk_faces_idx"])
+    dyn[1:] = (dyn[1:] + 7) % len(arrays["f"])  # other yaw rows point elsewhere
+    arrays["dynamic_lmk_faces_idx"] = dyn
+    path = tmp_path / "lut.npz"
+    np.savez(path, **arrays)
+    model = BodyModel.from_file(path)
+    reg = WholeBodyRegressor(model)
+    faces = model.faces.numpy()
+    first = JN.KP_FACE[0]
+    np.testing.assert_array_equal(reg.vert_idx[first:first + 17].numpy(), faces[dyn[0]])
