@@ -5,7 +5,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
 
 from signsplat.config import ConfigError, load_scene, validate
 from signsplat.io.tables import write_table
