@@ -232,17 +232,17 @@ def pose_correctives(verts: np.ndarray, faces: np.ndarray, weights: np.ndarray,
 
 
 # --- shape and expression directions --------------------------------------------------------
+# 10 shape and 10 expression directions: the layout of the 20-direction official SMPL-X files,
+# which smplx's own loader also reads (shape 0..9, expression 10..19).
 SHAPE_NAMES = ("height", "girth", "leg_length", "arm_length", "shoulder_width", "hand_size",
-               "finger_length", "head_size", "belly", "hip_width", "neck_length",
-               "torso_length")
+               "finger_length", "head_size", "hip_width", "neck_length")
 EXPRESSION_NAMES = ("jaw_open", "smile", "brows_up", "brows_down", "eyes_close", "cheeks_puff",
-                    "lips_pucker", "mouth_stretch", "sneer", "mouth_corners_down",
-                    "lips_part", "wink_left")
+                    "lips_pucker", "mouth_stretch", "sneer", "mouth_corners_down")
 
 
 def shape_directions(verts: np.ndarray, joints: np.ndarray, labels: np.ndarray,
                      weights: np.ndarray) -> np.ndarray:
-    """(V, 3, 12) shape directions, one unit = about one standard deviation (metres)."""
+    """(V, 3, 10) shape directions, one unit = about one standard deviation (metres)."""
     x, y, z = verts.T
     ax = np.abs(x)
     sx = np.sign(x)
@@ -283,21 +283,16 @@ def shape_directions(verts: np.ndarray, joints: np.ndarray, labels: np.ndarray,
     hc = np.array([0.0, 1.60, 0.0])
     hw = smoothstep((y - 1.52) / 0.03) * (ax < 0.2)
     D[:, :, 7] = 0.05 * (verts - hc) * hw[:, None]
-    # 8 belly: forward bulge of the abdomen
-    g = np.exp(-(((y - 1.05) / 0.09) ** 2) - (x / 0.12) ** 2) * (z > 0) * body
-    D[:, 2, 8] = 0.03 * g
-    # 9 hip width: legs and pelvis spread
+    # 8 hip width: legs and pelvis spread
     hipw = 1.0 - smoothstep((y - 1.0) / 0.08)
-    D[:, 0, 9] = 0.02 * sx * np.clip(ax / 0.12, 0.0, 1.0) * hipw * (y < 1.2)
-    # 10 neck length: everything above the neck base rises
-    D[:, 1, 10] = 0.02 * np.clip((y - 1.43) / 0.08, 0.0, 1.0) * (ax < 0.14)
-    # 11 torso length: everything above the waist rises (arms, head included)
-    D[:, 1, 11] = 0.04 * np.clip((y - 1.0) / 0.3, 0.0, 1.0)
+    D[:, 0, 8] = 0.02 * sx * np.clip(ax / 0.12, 0.0, 1.0) * hipw * (y < 1.2)
+    # 9 neck length: everything above the neck base rises
+    D[:, 1, 9] = 0.02 * np.clip((y - 1.43) / 0.08, 0.0, 1.0) * (ax < 0.14)
     return D
 
 
 def expression_directions(verts: np.ndarray, joints: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """(V, 3, 12) expression directions on head vertices only (metres per unit)."""
+    """(V, 3, 10) expression directions on head vertices only (metres per unit)."""
     x, y, z = verts.T
     head = (labels == JN.PART_HEAD).astype(float)
     front = smoothstep((z - 0.03) / 0.02) * head
@@ -331,15 +326,10 @@ def expression_directions(verts: np.ndarray, joints: np.ndarray, labels: np.ndar
         E[:, 1, 9] += -0.004 * corner
         nose_side = g((s * 0.012, 1.59, 0.085), (0.012, 0.015, 0.02))
         E[:, 1, 8] += 0.003 * nose_side
-        if s > 0:
-            E[:, 1, 11] += -0.004 * lid
-            E[:, 1, 11] += 0.002 * cheek
     lips = g(m, (0.03, 0.015, 0.02))
     E[:, 2, 6] = 0.006 * lips
     E[:, 0, 6] = -0.25 * (x - m[0]) * lips
     upper_lip = g((0, 1.562, 0.082), (0.025, 0.005, 0.02)) * smoothstep((y - m[1]) / 0.003)
-    lower_lip = g((0, 1.549, 0.080), (0.025, 0.005, 0.02)) * smoothstep((m[1] - y) / 0.003)
-    E[:, 1, 10] = 0.003 * upper_lip - 0.003 * lower_lip
     E[:, 1, 8] += 0.002 * upper_lip
     return E * head[:, None, None]
 

@@ -4,8 +4,9 @@ The proxy stands in for the licensed SMPL-X file in the embedded default, and ru
 same loader and LBS code. It has the 55 SMPL-X joints (order, tree and rest pose of SMPL-X:
 T-pose, palms down, fingers straight, thumbs forward; y up, faces +z, feet on y = 0, ~1.74 m),
 a closed genus-0 surface (~10,475 vertices) meshed from a smooth union of primitives, with
-separated three-segment fingers and knuckle bulges, smooth skinning weights, 12 shape and 12
-expression directions, small pose correctives, a joint regressor that reproduces the joints
+separated three-segment fingers and knuckle bulges, smooth skinning weights, 10 shape and 10
+expression directions (the 20-direction layout of older official files, which smplx's own
+loader reads too), small pose correctives, a joint regressor that reproduces the joints
 from the vertices, hand PCA, 51 + 17 face landmarks, part labels, vertex colours, and named
 keypoint vertices for :mod:`signsplat.body.keypoints`.
 

@@ -170,3 +170,20 @@ def test_derive_part_labels():
     np.testing.assert_array_equal(
         derive_part_labels(W),
         [JN.PART_LEFT_HAND, JN.PART_RIGHT_HAND, JN.PART_HEAD, JN.PART_BODY, JN.PART_HEAD])
+
+
+def test_smplx_package_reads_the_proxy_file_the_same_way(proxy_path):
+    """The proxy is a valid official-layout file: smplx.SMPLX loads it and poses it alike."""
+    import smplx
+
+    B = 2
+    ref = smplx.SMPLX(str(proxy_path), ext="npz", use_pca=False, flat_hand_mean=True,
+                      num_betas=10, num_expression_coeffs=10, use_face_contour=False,
+                      batch_size=B)
+    model = BodyModel.from_file(proxy_path)
+    inp = _random_inputs(B, torch.Generator().manual_seed(5), scale=0.4)
+    with torch.no_grad():
+        want = ref(return_verts=True, **inp)
+        got = model(**inp)
+    assert (got.vertices - want.vertices).abs().max().item() < 1e-5
+    assert (got.joints - want.joints[:, :55]).abs().max().item() < 1e-5

@@ -16,7 +16,7 @@ JI = JN.JOINT_INDEX
 
 @pytest.fixture(scope="module")
 def model(proxy_path):
-    return BodyModel.from_file(proxy_path, num_betas=12, num_expression=12, dtype=torch.float64)
+    return BodyModel.from_file(proxy_path, num_betas=10, num_expression=10, dtype=torch.float64)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def test_mesh_is_closed_and_dense(proxy_arrays):
 def test_official_layout(proxy_arrays):
     a = proxy_arrays
     V = len(a["v_template"])
-    assert a["shapedirs"].shape == (V, 3, 24) and int(a["num_shape_dirs"]) == 12
+    assert a["shapedirs"].shape == (V, 3, 20) and int(a["num_shape_dirs"]) == 10
     assert a["posedirs"].shape == (V, 3, 486) and a["posedirs"].dtype == np.float32
     assert a["J_regressor"].shape == (55, V) and a["weights"].shape == (V, 55)
     np.testing.assert_array_equal(a["kintree_table"][0], JN.SMPLX_PARENTS)
@@ -178,7 +178,7 @@ def _named(model, which, name):
     from signsplat.body._proxy_rig import EXPRESSION_NAMES, SHAPE_NAMES
 
     names = SHAPE_NAMES if which == "betas" else EXPRESSION_NAMES
-    x = torch.zeros(1, 12, dtype=torch.float64)
+    x = torch.zeros(1, len(names), dtype=torch.float64)
     x[0, names.index(name)] = 1.0
     return model(**{which: x})
 
@@ -213,8 +213,8 @@ def test_shape_directions_have_their_named_effects(model):
     neck = _named(model, "betas", "neck_length")
     assert _len(neck, "neck", "head") > _len(base, "neck", "head") + 0.005
     # every direction does something, and the joints follow the surface
-    for i in range(12):
-        b = torch.zeros(1, 12, dtype=torch.float64)
+    for i in range(10):
+        b = torch.zeros(1, 10, dtype=torch.float64)
         b[0, i] = 1.0
         out = model(betas=b)
         assert (out.v_shaped - base.v_shaped).abs().max() > 0.005, i
@@ -223,8 +223,8 @@ def test_shape_directions_have_their_named_effects(model):
 def test_expressions_move_the_face_only(model):
     base = model()
     head = model.part_labels.numpy() == JN.PART_HEAD
-    for i in range(12):
-        e = torch.zeros(1, 12, dtype=torch.float64)
+    for i in range(10):
+        e = torch.zeros(1, 10, dtype=torch.float64)
         e[0, i] = 1.0
         d = (model(expression=e).v_shaped - base.v_shaped)[0].norm(dim=1).numpy()
         assert d[~head].max() == 0.0, i
