@@ -169,3 +169,14 @@ def test_build_motion_from_a_tracks_table(tmp_path):
 def test_motion_needs_glosses_or_tracks():
     with pytest.raises(sc.SceneError, match="glosses"):
         sc.build_motion(spec(motion={}), None)
+
+
+def test_gloss_motion_is_resampled_to_the_scene_frame_rate(gloss_library_path):
+    base = spec(motion={"glosses": ["HELLO"], "hold_frames": 0, "transition_frames": 0})
+    fast = spec(motion={"glosses": ["HELLO"], "hold_frames": 0, "transition_frames": 0},
+                fps=50)
+    m25 = sc.build_motion(base, gloss_library_path)
+    m50 = sc.build_motion(fast, gloss_library_path)
+    n25, n50 = len(m25["body_pose"]), len(m50["body_pose"])
+    assert n50 == 2 * (n25 - 1) + 1  # same duration, twice the frames
+    np.testing.assert_allclose(m50["body_pose"][::2], m25["body_pose"], atol=1e-5)

@@ -213,3 +213,18 @@ def test_keypoint_visibility_rule():
     # without the window, the point on the occluder's edge is hidden
     np.testing.assert_array_equal(keypoint_visibility(uv[:3], z[:3], depth, 0.1, radius=0),
                                   [True, True, False])
+
+
+def test_default_scene_cost_per_image(assets, tmp_path):
+    """Guard for the '< 2 minutes on 2 cores' budget: CPU seconds per 256x256 studio image
+    (process time, so other jobs on the machine do not count)."""
+    import time
+
+    s = load_scene(ROOT / "config" / "scenes" / "studio6.yaml")
+    s["max_frames"] = 3
+    simulate_scene(s, *assets, tmp_path / "warm", threads=1, progress=False)  # JIT cache, I/O
+    c0 = time.process_time()
+    summary = simulate_scene(s, *assets, tmp_path / "sim", threads=1, progress=False)
+    per_image = (time.process_time() - c0) / summary["images"]
+    # 360 images of studio6 + 60 of single at this cost stay well under 2 minutes
+    assert per_image < 0.25, per_image
