@@ -209,7 +209,6 @@ def joint_regressor(verts: np.ndarray, owner: np.ndarray, joints: np.ndarray,
             b = np.concatenate([joints[j], [1.0]])
             w = np.linalg.lstsq(A, b, rcond=None)[0]
         R[j, sel] = w
-    # polish: exact reproduction on the chosen support (tiny correction)
     return R
 
 
