@@ -183,3 +183,34 @@ def test_flexion_moves_proxy_fingertips_to_the_palm_side(proxy_body_path):
         d = hl.thumb_direction_from_joints(rest, side)
         default = np.array(hl.LEFT_THUMB_DIRECTION) * ([-1, 1, 1] if side == "right" else 1)
         assert d @ default > 0.999
+
+
+def test_hands_stay_outside_head_and_torso(proxy_body_path, library):
+    """Contact signs touch the face/chest of the proxy without sinking into it (< 8 mm)."""
+    import torch
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from signsplat.body.joints import JOINT_INDEX, PART_LEFT_HAND, PART_RIGHT_HAND
+    from signsplat.body.model import BodyModel
+
+    model = BodyModel.from_file(proxy_body_path)
+    labels = model.part_labels.numpy()
+    core = [JOINT_INDEX[n] for n in ("pelvis", "spine1", "spine2", "spine3", "neck", "head",
+                                     "jaw", "left_collar", "right_collar")]
+    is_core = model.lbs_weights.numpy()[:, core].sum(1) > 0.95
+    hands = np.isin(labels, [PART_LEFT_HAND, PART_RIGHT_HAND])
+    faces = model.faces.numpy()
+    clips = G.clips_from_table(library)
+    for name in ("THANK-YOU", "WHO", "NAME", "SCHOOL", "DEAF", "LIKE", "ME", "EAT"):
+        clip = clips[name]
+        idx = np.arange(0, clip.num_frames, 4)
+        p = {b: torch.as_tensor(clip.poses[b][idx]) for b in
+             ("body_pose", "left_hand_pose", "right_hand_pose", "jaw_pose", "expression")}
+        with torch.no_grad():
+            verts = model(**p).vertices.numpy()
+        for v in verts:
+            normals = trimesh.Trimesh(v, faces, process=False).vertex_normals
+            d, i = cKDTree(v[is_core]).query(v[hands])
+            depth = -np.einsum("ij,ij->i", v[hands] - v[is_core][i], normals[is_core][i])
+            assert depth[d < 0.05].max(initial=0.0) < 0.008, name
