@@ -21,6 +21,7 @@ import json
 import os
 import zlib
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -280,9 +281,18 @@ def build_gloss_library(seed: int = 0, fps: float = 25.0) -> pd.DataFrame:
     """The whole library as a ``gloss_library`` table (one row per gloss, deterministic).
 
     Extra columns: ``components`` (JSON: handshapes, locations, movement, non-manual features).
+    Results are cached per (seed, fps) in the process; every call returns fresh arrays.
     """
     if fps <= 0:
         raise ValueError(f"fps must be > 0, got {fps}")
+    rows = _library_rows(int(seed), float(fps))
+    return pd.DataFrame([{k: (v.copy() if isinstance(v, np.ndarray) else
+                              list(v) if isinstance(v, list) else v) for k, v in r.items()}
+                         for r in rows])
+
+
+@lru_cache(maxsize=4)
+def _library_rows(seed: int, fps: float) -> tuple[dict, ...]:
     rows = []
     for sign in all_signs():
         blocks = build_gloss(sign, seed, fps)
@@ -294,7 +304,7 @@ def build_gloss_library(seed: int = 0, fps: float = 25.0) -> pd.DataFrame:
             **{k: v.reshape(-1) for k, v in blocks.items()},
             "components": _components(sign),
         })
-    return pd.DataFrame(rows)
+    return tuple(rows)
 
 
 def write_gloss_library(path: str | os.PathLike, seed: int = 0, fps: float = 25.0) -> Path:
