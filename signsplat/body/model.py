@@ -227,7 +227,7 @@ class BodyModel(nn.Module):
         return coeffs @ comps
 
     def _batch(self, kwargs: dict[str, Tensor | None]) -> int:
-        sizes = {int(v.shape[0]) for v in kwargs.values() if v is not None and v.dim() > 1}
+        sizes = {int(v.shape[0]) for v in kwargs.values() if v is not None and v.ndim > 1}
         sizes.discard(1)
         if len(sizes) > 1:
             raise ValueError(f"inconsistent batch sizes {sorted(sizes)}")
@@ -237,9 +237,11 @@ class BodyModel(nn.Module):
         ref = self.v_template
         if value is None:
             return ref.new_zeros(B, size)
-        value = value.to(dtype=ref.dtype, device=ref.device)
+        value = torch.as_tensor(value).to(dtype=ref.dtype, device=ref.device)
         if value.dim() == 1:
             value = value.unsqueeze(0)
+        elif value.dim() > 2:  # e.g. body_pose as (B, 21, 3)
+            value = value.reshape(value.shape[0], -1)
         if value.shape[-1] > size:
             raise ValueError(f"{name} has {value.shape[-1]} values, the model takes at most {size}")
         if value.shape[-1] < size:
@@ -252,6 +254,9 @@ class BodyModel(nn.Module):
                 reye_pose: Tensor | None = None, left_hand_pose: Tensor | None = None,
                 right_hand_pose: Tensor | None = None, transl: Tensor | None = None) -> BodyOutput:
         """Pose the model. Every argument is (B, k) or None (zeros); returns :class:`BodyOutput`.
+
+        Poses may also be given per joint, e.g. body_pose (B, 21, 3); (k,) means batch 1 and a
+        batch of 1 broadcasts against the others.
 
         betas (B, <=num_betas), expression (B, <=num_expression), global_orient (B, 3),
         body_pose (B, 63), jaw/leye/reye_pose (B, 3), left/right_hand_pose (B, 45) full

@@ -187,3 +187,14 @@ def test_smplx_package_reads_the_proxy_file_the_same_way(proxy_path):
         got = model(**inp)
     assert (got.vertices - want.vertices).abs().max().item() < 1e-5
     assert (got.joints - want.joints[:, :55]).abs().max().item() < 1e-5
+
+
+def test_per_joint_pose_shapes_are_flattened(proxy):
+    gen = torch.Generator().manual_seed(7)
+    bp = 0.3 * torch.randn(2, 21, 3, generator=gen)
+    hp = 0.3 * torch.randn(2, 15, 3, generator=gen)
+    a = proxy(body_pose=bp, left_hand_pose=hp)
+    b = proxy(body_pose=bp.reshape(2, 63), left_hand_pose=hp.reshape(2, 45))
+    torch.testing.assert_close(a.vertices, b.vertices)
+    c = proxy(body_pose=bp[0].reshape(63).numpy())  # numpy and unbatched inputs work too
+    torch.testing.assert_close(c.vertices, proxy(body_pose=bp[:1].reshape(1, 63)).vertices)
