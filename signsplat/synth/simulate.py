@@ -12,10 +12,13 @@ effects the scene lists (:mod:`signsplat.synth.effects`) and writes, each file a
     <out>/keypoints_gt.parquet                table 'keypoints' + 'visible' (bool), 'depth' (m)
 
 Ground-truth keypoints: the 133 COCO-WholeBody points of ``WholeBodyRegressor`` projected into
-every view; ``visible`` = inside the image and, at its pixel or one of the 8 neighbours (silhouette
-points), not behind the rendered surface (occluders included) by more than the keypoint's own
-rest-pose depth below the skin plus ``render.keypoint_tolerance``; ``score`` = visible as
-float; ``depth`` = camera z (m).
+every view. ``visible``: the keypoint's pixel is in the image, and at that pixel or one of its
+8 neighbours (silhouette points) the rendered surface (occluders included) is not nearer than
+the keypoint by more than a tolerance: for surface keypoints (face, fingertips, ...) their
+distance to the nearest posed vertex plus ``render.keypoint_tolerance``; for joint keypoints
+(shoulders, elbows, hand joints, ...) twice their depth below the skin plus that slack, and
+the surface seen there must be skinned to the joint, its parent or its children (the body
+part around it, not another limb or an occluder in front). ``score`` = visible as float; ``depth`` = camera z (m).
 Same scene and seed -> byte-identical files.
 """
 
@@ -63,19 +66,28 @@ class SignerMesh:
 class ViewRender:
     """One rendered view: ``rgb`` (H,W,3) float32 [0,1], ``mask`` (H,W) bool signer coverage
     >= 0.5, ``depth`` (H,W) float32 nearest surface in each pixel (signer or prop, metres,
-    inf = empty), ``coverage`` (H,W) float32 fraction of samples showing the signer."""
+    inf = empty), ``face`` (H,W) int32 triangle of that nearest surface (signer faces first,
+    then props; -1 = empty), ``coverage`` (H,W) float32 fraction of samples showing the
+    signer."""
 
     rgb: np.ndarray
     mask: np.ndarray
     depth: np.ndarray
+    face: np.ndarray
     coverage: np.ndarray
 
 
-def _block_min(a: np.ndarray, s: int) -> np.ndarray:
+def _block_nearest(depth: np.ndarray, face: np.ndarray, s: int):
+    """Per s x s block the nearest sample: depth (H,W) float32 and its face id (H,W) int32."""
     if s == 1:
-        return a
-    h, w = a.shape[0] // s, a.shape[1] // s
-    return a.reshape(h, s, w, s).min(axis=(1, 3))
+        return depth, face
+    h, w = depth.shape[0] // s, depth.shape[1] // s
+    d = depth.reshape(h, s, w, s).transpose(0, 2, 1, 3).reshape(h, w, s * s)
+    f = face.reshape(h, s, w, s).transpose(0, 2, 1, 3).reshape(h, w, s * s)
+    k = np.argmin(d, axis=2)[..., None]
+    return (np.take_along_axis(d, k, 2)[..., 0],
+            np.where(np.isfinite(np.take_along_axis(d, k, 2)[..., 0]),
+                     np.take_along_axis(f, k, 2)[..., 0], -1).astype(np.int32))
 
 
 def _shade_samples(raster: mr.Raster, verts: np.ndarray, faces: np.ndarray, n_signer: int,
@@ -177,7 +189,7 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
     acc_rgb = np.zeros((Hh, Wh, 3), np.float32)
     acc_cov = np.zeros((Hh, Wh), np.float32)  # signer samples
     acc_alpha = np.zeros((Hh, Wh), np.float32)  # signer or prop samples
-    depth_hi = None
+    depth_hi = face_hi = None
     for v, w in zip(poses, weights):
         verts = scene_vertices(v)
         raster = mr.rasterize(verts, faces, K_hi, cam.R, cam.t, Wh, Hh, near)
@@ -185,6 +197,7 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
                                   prop_normals, chain, hi_cam)
         if len(poses) == 1:
             acc_rgb, acc_cov, depth_hi = rgb, hit.astype(np.float32), raster.depth
+            face_hi = raster.face_id
             acc_alpha = raster.mask.astype(np.float32)
         else:
             acc_rgb += np.float32(w) * rgb
@@ -192,8 +205,8 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
             acc_alpha += np.float32(w) * raster.mask
     if depth_hi is None:
         pose = poses[len(poses) // 2] if depth_pose is None else depth_pose
-        depth_hi = mr.rasterize(scene_vertices(pose), faces, K_hi, cam.R, cam.t, Wh, Hh,
-                                near).depth
+        raster = mr.rasterize(scene_vertices(pose), faces, K_hi, cam.R, cam.t, Wh, Hh, near)
+        depth_hi, face_hi = raster.depth, raster.face_id
     rgb = mr.downsample(acc_rgb, s)
     coverage = mr.downsample(acc_cov, s).astype(np.float32)
     for effect in chain.at("background"):
@@ -203,7 +216,8 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
     for effect in chain.at("image"):
         rgb = effect.image(rgb, view, frame)
     rgb = np.clip(rgb, 0.0, 1.0).astype(np.float32)
-    return ViewRender(rgb, coverage >= 0.5, _block_min(depth_hi, s), coverage)
+    depth, face = _block_nearest(depth_hi, face_hi, s)
+    return ViewRender(rgb, coverage >= 0.5, depth, face, coverage)
 
 
 # --- keypoints -----------------------------------------------------------------------------
@@ -219,20 +233,27 @@ def project(points: np.ndarray, cam: Camera, near: float = 1e-6) -> tuple[np.nda
 
 
 def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
-                        tolerance: np.ndarray | float, radius: int = 1) -> np.ndarray:
-    """Visible keypoints: inside the image and not behind the rendered surface.
+                        tolerance: np.ndarray | float, radius: int = 1,
+                        face: np.ndarray | None = None, face_joint: np.ndarray | None = None,
+                        allowed: np.ndarray | None = None) -> np.ndarray:
+    """Visible keypoints: inside the image and not hidden behind other surface.
 
     A keypoint is visible when its pixel lies in the image and some pixel within ``radius``
     (a (2r+1)^2 window; r = 1 lets silhouette points such as fingertips and ears count) shows
-    a surface no nearer than the keypoint's depth minus the tolerance.
+    a surface no nearer than the keypoint's depth minus its tolerance. Keypoints with a row in
+    ``allowed`` that has any True entry (joints inside the body) must in addition see, at that
+    pixel, a signer triangle whose joint (``face_joint``) is allowed for them (the body part
+    around the joint, not a hand or an occluder in front of it).
 
     Args:
         uv: (N, 2) pixel coordinates (NaN = behind the camera).
         z: (N,) camera depth of the keypoints (m).
         depth: (H, W) nearest rendered surface per pixel (m, inf = empty).
-        tolerance: scalar or (N,) slack in metres (keypoints inside the body sit below the
-            skin by up to this much).
+        tolerance: scalar or (N,) slack in metres.
         radius: window half-size in pixels.
+        face: (H, W) int triangle id of the nearest surface (-1 = empty); needed with allowed.
+        face_joint: (F,) int joint of each signer triangle (ids >= F are props).
+        allowed: (N, J) bool joints whose surface may be seen at a joint keypoint.
 
     Returns:
         (N,) bool. A keypoint over empty pixels only is not visible (it is not on the body).
@@ -247,13 +268,23 @@ def keypoint_visibility(uv: np.ndarray, z: np.ndarray, depth: np.ndarray,
     tol = np.broadcast_to(np.asarray(tolerance, np.float64), z.shape)
     visible = np.zeros(len(uv), bool)
     idx = np.flatnonzero(inside)
+    if allowed is not None:
+        part_kp = allowed[idx].any(axis=1)
     for dy in range(-radius, radius + 1):
         for dx in range(-radius, radius + 1):
             qx, qy = px[idx] + dx, py[idx] + dy
             ok = (qx >= 0) & (qx < W) & (qy >= 0) & (qy < H)
             surf = np.full(len(idx), np.inf)
             surf[ok] = depth[qy[ok], qx[ok]]
-            visible[idx] |= np.isfinite(surf) & (z[idx] <= surf + tol[idx])
+            hit = np.isfinite(surf) & (z[idx] <= surf + tol[idx])
+            if allowed is not None:
+                fq = np.full(len(idx), -1, np.int64)
+                fq[ok] = face[qy[ok], qx[ok]]
+                on_signer = (fq >= 0) & (fq < len(face_joint))
+                joint = np.where(on_signer, face_joint[np.where(on_signer, fq, 0)], 0)
+                part_ok = on_signer & allowed[idx, joint]
+                hit &= ~part_kp | part_ok
+            visible[idx] |= hit
     return visible
 
 
@@ -300,13 +331,46 @@ def _pose(model, params: Mapping[str, np.ndarray], regressor=None, chunk: int = 
     return np.concatenate(verts), (np.concatenate(kps) if regressor is not None else None)
 
 
-def _keypoint_depth_below_skin(model, regressor, betas: np.ndarray) -> np.ndarray:
-    """(133,) distance (m) from each rest-pose keypoint to the nearest mesh vertex."""
+def _depth_below_skin(verts: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """(T, K) distance (m) from each posed keypoint to the nearest posed mesh vertex.
+
+    verts (T, V, 3), kps (T, K, 3). Joint keypoints sit inside the body (a hip ~10 cm, a
+    finger joint ~1 cm); surface keypoints are ~0.
+    """
     from scipy.spatial import cKDTree
 
-    rest = {"betas": betas[None, :]}
-    verts, kps = _pose(model, rest, regressor)
-    return cKDTree(verts[0]).query(kps[0])[0]
+    return np.stack([cKDTree(v).query(k)[0] for v, k in zip(verts, kps)])
+
+
+def _keypoint_parts(model, regressor, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which body part each joint keypoint may be seen on.
+
+    Returns ``face_joint`` (F,) int64, the dominant skinning joint of each triangle, and
+    ``allowed`` (K, J) bool: for a keypoint that is a model joint j (matched in the rest
+    pose), the surface skinned to j, its parent or its children (the bones meeting at the
+    joint: for a wrist the forearm, the palm and the finger roots); all False for surface
+    keypoints.
+    """
+    import torch
+
+    weights = model.lbs_weights.detach().cpu().numpy()
+    vjoint = np.argmax(weights, axis=1)
+    a, b, c = (vjoint[faces[:, i]] for i in range(3))
+    face_joint = np.where(b == c, b, a).astype(np.int64)
+    with torch.no_grad():
+        out = model()
+        kps = regressor(out)[0].detach().cpu().numpy()
+    joints = out.joints[0].detach().cpu().numpy()
+    parents = model.parents.detach().cpu().numpy()
+    dist = np.linalg.norm(kps[:, None] - joints[None], axis=2)
+    allowed = np.zeros((len(kps), len(joints)), bool)
+    for k in np.flatnonzero(dist.min(axis=1) < 1e-6):
+        j = int(np.argmin(dist[k]))
+        allowed[k, j] = True
+        allowed[k, parents == j] = True
+        if parents[j] >= 0:
+            allowed[k, parents[j]] = True
+    return face_joint, allowed
 
 
 # --- tables --------------------------------------------------------------------------------
@@ -367,7 +431,11 @@ def simulate_scene(scene: Mapping[str, Any], body_path: str | os.PathLike,
     params = build_motion(scene, gloss_path, model.num_betas, model.num_expression)
     T = len(params["betas"])
     verts, kps = _pose(model, params, regressor)
-    tol = _keypoint_depth_below_skin(model, regressor, params["betas"][0]) + kp_tol
+    face_joint, allowed = _keypoint_parts(model, regressor, signer.faces)
+    below = _depth_below_skin(verts, kps)  # (T, 133)
+    # joint keypoints: the part around them may bulge towards the camera (twice the depth
+    # below the skin); surface keypoints: the skin itself
+    tol = np.where(allowed.any(axis=1)[None], 2.0 * below, below) + kp_tol
 
     blur = chain.at("subframes")
     if blur:
@@ -400,7 +468,8 @@ def simulate_scene(scene: Mapping[str, Any], body_path: str | os.PathLike,
         write_png(out / image, np.round(result.rgb * 255.0).astype(np.uint8))
         write_png(out / mask, np.where(result.mask, 255, 0).astype(np.uint8))
         uv, z = project(kps[f], cam)
-        vis = keypoint_visibility(uv, z, result.depth, tol)
+        vis = keypoint_visibility(uv, z, result.depth, tol[f], face=result.face,
+                                  face_joint=face_joint, allowed=allowed)
         row = {"scene": name, "view": v, "frame": f, "time": f / fps, "image": image,
                "mask": mask}
         return row, uv, z, vis, time.perf_counter() - t0

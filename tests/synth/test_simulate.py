@@ -228,3 +228,23 @@ def test_default_scene_cost_per_image(assets, tmp_path):
     per_image = (time.process_time() - c0) / summary["images"]
     # 360 images of studio6 + 60 of single at this cost stay well under 2 minutes
     assert per_image < 0.25, per_image
+
+
+def test_joint_keypoints_must_see_their_own_body_part():
+    from signsplat.synth.simulate import keypoint_visibility
+
+    depth = np.full((3, 3), 1.0)
+    face = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1]])  # face 0: joint 4, face 1: joint 7
+    face_joint = np.array([4, 7])
+    allowed = np.zeros((3, 9), bool)
+    allowed[0, [3, 4]] = True  # a joint keypoint seen on its own part
+    allowed[1, [6, 8]] = True  # a joint keypoint whose part is not in view
+    uv = np.array([[1.0, 1.0], [1.0, 1.0], [1.0, 1.0]])
+    z = np.array([1.05, 1.05, 1.05])
+    vis = keypoint_visibility(uv, z, depth, np.array([0.1, 0.1, 0.1]), radius=0, face=face,
+                              face_joint=face_joint, allowed=allowed)
+    np.testing.assert_array_equal(vis, [True, False, True])  # row 2: a surface keypoint
+    # a prop (face id beyond the signer's faces) never shows a joint's part
+    vis = keypoint_visibility(uv[:1], z[:1], depth, 0.1, radius=0, face=face + 5,
+                              face_joint=face_joint, allowed=allowed[:1])
+    assert not vis[0]
