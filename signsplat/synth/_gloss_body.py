@@ -206,10 +206,11 @@ def arm_ik_matrices(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
     elbow = S + L1 * a_dir
     f_dir = (S + d[:, None] * u) - elbow
     f_dir /= np.linalg.norm(f_dir, axis=-1, keepdims=True)
-    k = np.cross(a_dir, f_dir)
-    sin_phi = np.linalg.norm(k, axis=-1)
-    phi = np.arctan2(sin_phi, np.sum(a_dir * f_dir, axis=-1))
-    k = k / np.maximum(sin_phi, 1e-9)[:, None]
+    # hinge axis = normal of the arm plane spanned by u and the pole (a x f points along
+    # v x u); taken from the pole so it stays defined when the elbow is almost straight or
+    # fully folded
+    k = np.cross(v, u)
+    k /= np.linalg.norm(k, axis=-1, keepdims=True)
     # ideal shoulder frame: x-axis -> bone direction (rest bone +x left, -x right), y -> hinge
     if side == "left":
         x_axis, y_axis = a_dir, -k
@@ -233,6 +234,8 @@ def arm_ik_matrices(wrist_target: np.ndarray, hand_rot: np.ndarray, side: str,
     rem = Rotation.from_matrix(np.swapaxes(R_h, -1, -2) @ hand_rot).as_quat()  # xyzw
     tau = 2.0 * np.arctan2(rem[:, :3] @ e2n, rem[:, 3])
     tau = (tau + np.pi) % (2.0 * np.pi) - np.pi
+    tau = np.unwrap(tau)  # continuous over the frames of a track
+    tau -= 2.0 * np.pi * np.round(np.median(tau) / (2.0 * np.pi))
     tau = np.clip(tau, -max_twist, max_twist)
     R_e_local = R_hinge @ Rotation.from_rotvec(e2n[None] * tau[:, None]).as_matrix()
     R_e = R_s @ R_e_local

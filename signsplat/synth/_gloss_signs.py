@@ -175,7 +175,7 @@ SIGNS: tuple[Sign, ...] = (
          Hand("B", "neutral", "up", "forward", offset=(0.12, 0.0, 0.0),
               move=Move("away", "down", 0.07)), nondom="mirror"),
     Sign("SCHOOL", ("school", "teach", "class", "lesson"),
-         Hand("1", "temple", "in", "up+forward", contact="index_tip", offset=(0.06, 0.0, 0.03),
+         Hand("1", "temple", "forward", "up+in", contact="index_tip", offset=(0.06, 0.0, 0.03),
               move=Move("repeat", "forward+down", 0.12, 2)), nondom="mirror"),
     Sign("WORK", ("work", "job"),
          Hand("B", "nondom:back", "in", "forward", contact="edge", offset=(0.0, 0.02, 0.0),

@@ -215,3 +215,18 @@ def test_hands_stay_outside_head_and_torso(proxy_body_path, library):
             d, i = cKDTree(v[is_core]).query(v[hands])
             depth = -np.einsum("ij,ij->i", v[hands] - v[is_core][i], normals[is_core][i])
             assert depth[d < 0.05].max(initial=0.0) < 0.008, name
+
+
+def test_tracks_are_smooth(library):
+    """No joint of any gloss turns more than 15 degrees between consecutive frames at 25 fps
+    (the IK keeps the elbow swivel and forearm twist continuous)."""
+    from scipy.spatial.transform import Rotation
+
+    clips = G.clips_from_table(library)
+    for clip in clips.values():
+        for block in ("body_pose", "left_hand_pose", "right_hand_pose"):
+            r = clip.poses[block].astype(np.float64).reshape(clip.num_frames, -1, 3)
+            a = Rotation.from_rotvec(r[:-1].reshape(-1, 3))
+            b = Rotation.from_rotvec(r[1:].reshape(-1, 3))
+            step = np.degrees((b * a.inv()).magnitude())
+            assert step.max() < 15.0, (clip.gloss, block, step.max())
