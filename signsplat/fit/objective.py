@@ -64,17 +64,24 @@ def body_pose_weights(w: Weights, dtype=torch.float32, device="cpu") -> torch.Te
 #: COCO body keypoints of the arms (elbows, wrists): the optional part ``limbs`` reweights them
 #: (e.g. 0 while only the root is solved and the arms are still in the rest pose).
 LIMB_KEYPOINTS = (7, 8, 9, 10)
+#: Hand keypoints rigid with the wrist (wrist, thumb CMC and the four MCP joints of each hand):
+#: the optional part ``palms`` reweights them, so the wrist orientation can be solved before
+#: the fingers.
+PALM_KEYPOINTS = tuple(base + k for base in (J.KP_LEFT_HAND[0], J.KP_RIGHT_HAND[0])
+                       for k in (0, 1, 5, 9, 13, 17))
 
 
 def part_weight_vector(part_weights: dict[str, float], dtype=torch.float32,
                        device="cpu") -> torch.Tensor:
     """Per-keypoint weights (133,) from part weights (keys of ``joints.KEYPOINT_PARTS``, plus
-    ``limbs`` for :data:`LIMB_KEYPOINTS`)."""
+    ``limbs`` for :data:`LIMB_KEYPOINTS` and ``palms`` for :data:`PALM_KEYPOINTS`)."""
     w = torch.zeros(J.NUM_KEYPOINTS, dtype=dtype, device=device)
     for part, idx in J.KEYPOINT_PARTS.items():
         w[list(idx)] = float(part_weights.get(part, 1.0))
     if "limbs" in part_weights:
         w[list(LIMB_KEYPOINTS)] = float(part_weights["limbs"])
+    if "palms" in part_weights:
+        w[list(PALM_KEYPOINTS)] = float(part_weights["palms"])
     return w
 
 
