@@ -276,3 +276,18 @@ def test_seed_changes_appearance_and_hand_basis_only():
     assert np.abs(c0[10:] - c1[10:]).max() > 0.1
     np.testing.assert_array_equal(m0, m1)
     assert any(np.any(palette(0)[k] != palette(s)[k]) for s in range(1, 6) for k in palette(0))
+
+
+def test_fingers_are_separated(proxy_arrays, J):
+    """Between neighbouring fingers, beyond the knuckles, there is air (not a webbed paddle)."""
+    mesh = trimesh.Trimesh(proxy_arrays["v_template"], proxy_arrays["f"], process=False)
+    pts, inside_ref = [], []
+    for side in ("left", "right"):
+        for a, b in (("index", "middle"), ("middle", "ring"), ("ring", "pinky")):
+            for k in (2, 3):  # middle of segment 2 and of segment 3
+                pa = 0.5 * (J[JI[f"{side}_{a}{k}"]] + J[JI[f"{side}_{a}{min(k + 1, 3)}"]])
+                pb = 0.5 * (J[JI[f"{side}_{b}{k}"]] + J[JI[f"{side}_{b}{min(k + 1, 3)}"]])
+                pts.append(0.5 * (pa + pb))
+                inside_ref += [pa, pb]
+    assert not mesh.contains(np.array(pts)).any()
+    assert mesh.contains(np.array(inside_ref)).all()  # the finger axes are inside
