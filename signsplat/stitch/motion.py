@@ -180,6 +180,14 @@ def _held(clips: Sequence[GlossClip]) -> tuple[np.ndarray, np.ndarray]:
     return go, tr
 
 
+def _betas(clips: Sequence[GlossClip]) -> np.ndarray:
+    """Mean betas of the clips that carry them (imported clips), else zeros(10)."""
+    have = [c.poses["betas"] for c in clips if "betas" in c.poses]
+    if not have:
+        return np.zeros(10, np.float32)
+    return np.concatenate(have).mean(0).astype(np.float32)
+
+
 def _pose_at(clip: GlossClip, i: int, blocks: Iterable[str]) -> dict[str, np.ndarray]:
     return {b: clip.poses[b][i] for b in blocks if b in clip.poses}
 
@@ -201,7 +209,8 @@ def stitch_frames(clips: Sequence[GlossClip], config: StitchConfig = StitchConfi
         clips: the gloss clips in signing order (hand poses 'flat'); references are enough,
             frames are generated lazily.
         config: transition lengths and holds.
-        betas: (S,) shape, constant over the sequence (default zeros(10)).
+        betas: (S,) shape, constant over the sequence (default: the mean betas of the clips
+            that carry betas, else zeros(10)).
         num_expression: size of the expression block (missing blocks are zeros).
         fps: if given, every clip must have this frame rate.
     Yields:
@@ -215,7 +224,7 @@ def stitch_frames(clips: Sequence[GlossClip], config: StitchConfig = StitchConfi
     if not clips:
         return
     go, tr = _held(clips)
-    betas = np.zeros(10, np.float32) if betas is None else np.asarray(betas, np.float32)
+    betas = _betas(clips) if betas is None else np.asarray(betas, np.float32)
     sizes = dict(FRAME_BLOCKS, expression=num_expression, betas=len(betas))
     moving = [b for b in sizes if b not in ("global_orient", "transl", "betas")]
     fixed = {"global_orient": go.astype(np.float32), "transl": tr.astype(np.float32),
@@ -261,8 +270,8 @@ def stitch_clips(clips: Sequence[GlossClip], config: StitchConfig = StitchConfig
     """The whole stitched sequence as arrays: block -> (T, k) float32, plus ``label`` (T,)
     str and ``gloss_index`` (T,) int32. Use :func:`stitch_frames` for long sentences."""
     frames = list(stitch_frames(clips, config, betas, num_expression, fps))
-    sizes = dict(FRAME_BLOCKS, expression=num_expression,
-                 betas=10 if betas is None else len(betas))
+    n_betas = len(betas) if betas is not None else len(_betas(clips)) if clips else 10
+    sizes = dict(FRAME_BLOCKS, expression=num_expression, betas=n_betas)
     out = {b: (np.stack([f.params[b] for f in frames]) if frames
                else np.zeros((0, k), np.float32)) for b, k in sizes.items()}
     out["label"] = np.array([f.label for f in frames], dtype=object)

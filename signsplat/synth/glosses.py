@@ -317,7 +317,7 @@ def write_gloss_library(path: str | os.PathLike, seed: int = 0, fps: float = 25.
 
 def clips_from_table(df: pd.DataFrame, where: str = "<table>") -> dict[str, GlossClip]:
     """Turn ``gloss_library`` rows into clips; list columns are reshaped to (N, k)."""
-    extra = ("global_orient", "transl", "betas")
+    extra = ("global_orient", "transl", "betas", "leye_pose", "reye_pose")
     clips: dict[str, GlossClip] = {}
     for row in df.itertuples(index=False):
         n = int(row.num_frames)

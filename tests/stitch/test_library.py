@@ -113,3 +113,12 @@ def test_stitching_imported_with_synthetic(gloss_library):
     assert np.isfinite(out["body_pose"]).all()
     assert set(out["label"]) == {"HELLO", "CUSTOM", "transition"}
     assert isinstance(lib["HELLO"], GlossClip)
+
+
+def test_imported_betas_are_averaged_and_held():
+    arr = _signavatars(20)
+    clips = L.import_signavatars(arr, [("A1", 0, 8), ("B1", 8, 20)], 25.0, "flat", "s", "l")
+    out = M.stitch_clips([clips["A1"], clips["B1"]])
+    expected = arr[:, 159:169].mean(0)
+    np.testing.assert_allclose(out["betas"], np.tile(expected, (len(out["betas"]), 1)),
+                               atol=1e-5)
