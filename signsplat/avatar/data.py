@@ -32,7 +32,8 @@ class SceneData:
 
     frames: (F,) frame ids (sorted); views: (C,) camera ids; images: (C, F, H, W, 3) uint8;
     masks: (C, F, H, W) uint8 0/255 (255 everywhere when the table has none);
-    viewmats: (C, 4, 4) float32; Ks: (C, 3, 3) float32 (scaled to the loaded resolution);
+    viewmats: (C, 4, 4) float32; Ks: (C, 3, 3) float32 for the rasterizer (scaled to the loaded
+    resolution; principal point + 0.5 px: the rasterizer puts pixel centres at i + 0.5);
     smplx: block name -> (F, k) float32 tensors (NaN replaced, see ``sanitize_smplx``).
     """
 
@@ -129,6 +130,10 @@ def load_scene(frames_path: str | os.PathLike, cameras_path: str | os.PathLike,
             # pixel centres at integer coordinates: x' = (x + 0.5) * s - 0.5
             k[0, 2] = (row["cx"] + 0.5) * sx - 0.5
             k[1, 2] = (row["cy"] + 0.5) * sy - 0.5
+        # tables put pixel centres at integer coordinates (OpenCV); the rasterizer (gsplat
+        # semantics) at i + 0.5: shift the principal point by half a pixel
+        k[0, 2] += 0.5
+        k[1, 2] += 0.5
         viewmats.append(m)
         ks.append(k)
     rows = ftab.set_index(["view", "frame"])

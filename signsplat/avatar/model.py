@@ -83,7 +83,12 @@ def morton_order(points: torch.Tensor, bits: int = 10) -> torch.Tensor:
 
 
 class ConvNet1d(nn.Module):
-    """Light 1D-conv network over a point sequence: (B, C_in, P) -> list of (B, C_k, P) heads."""
+    """Light 1D-conv network over a point sequence.
+
+    ``forward(x)`` maps (B, C_in, P) to a list of (B, P, C_k) heads: a trunk of ``layers``
+    convolutions (``kernel`` wide, SiLU) and one zero-initialised linear layer whose outputs are
+    split into the heads (so residual heads start at zero: the canonical model).
+    """
 
     def __init__(self, c_in: int, hidden: int, heads: tuple[int, ...], kernel: int, layers: int):
         super().__init__()
@@ -93,14 +98,24 @@ class ConvNet1d(nn.Module):
             mods += [nn.Conv1d(c, hidden, kernel, padding=kernel // 2), nn.SiLU()]
             c = hidden
         self.trunk = nn.Sequential(*mods)
-        self.heads = nn.ModuleList(nn.Conv1d(hidden, h, 1) for h in heads)
-        for head in self.heads:  # residual heads start at zero: the canonical model
-            nn.init.zeros_(head.weight)
-            nn.init.zeros_(head.bias)
+        self.sizes = tuple(heads)
+        self.head = nn.Linear(hidden, sum(heads))
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
-        f = self.trunk(x)
-        return [h(f) for h in self.heads]
+        f = self.trunk(x).transpose(1, 2)  # (B, P, hidden)
+        return list(torch.split(self.head(f), self.sizes, dim=-1))
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of (..., 4) quaternions in (w, x, y, z) order."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
 @dataclass
@@ -231,7 +246,7 @@ class AvatarModel(nn.Module):
             return None
         order = self.vertex_order
         x = ((self.template - self.center) / self.extent)[order].T[None]
-        raw = self.disp_net(x)[0][0].T  # (V, 3) in sequence order
+        raw = self.disp_net(x)[0][0]  # (V, 3) in sequence order
         raw = torch.empty_like(raw).index_copy(0, order, raw)
         v_parts = _PART_TO_GROUP.to(self.part.device)[self.part[: self.num_vertices]]
         bound = self.disp_bounds[v_parts][:, None]
@@ -269,9 +284,13 @@ class AvatarModel(nn.Module):
             n_p = face_normals(v_p, self.faces[fidx])
             x_c = x_c.index_add(1, idx, n_c * l_off[idx, None])
             x_p = x_p.index_add(1, idx, n_p * l_off[idx, None])
-        m_p = (m_v[:, self.anchors] * bary[None, ..., None, None]).sum(2)  # (B, P, 3, 3)
-        eye = torch.eye(3, dtype=m_p.dtype, device=m_p.device)
-        r_p = roma.special_gramschmidt(m_p + 1e-6 * eye)  # rotation of each point's frame
+        # rotation of each vertex's blended LBS frame, blended over each point's anchors
+        eye = torch.eye(3, dtype=m_v.dtype, device=m_v.device)
+        q_v = xyzw_to_wxyz(roma.rotmat_to_unitquat(roma.special_gramschmidt(m_v + 1e-6 * eye)))
+        q_a = q_v[:, self.anchors]  # (B, P, 3, 4)
+        sign = torch.where((q_a * q_a[:, :, :1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        q_p = (q_a * (sign * bary[None, ..., None])).sum(2)
+        q_p = q_p / q_p.norm(dim=-1, keepdim=True).clamp_min(1e-9)
 
         scale_raw = self.scale_raw.expand(b, -1, -1)
         quat = self.quat.expand(b, -1, -1)
@@ -287,11 +306,8 @@ class AvatarModel(nn.Module):
                                   x_p - tr[:, None] - root[:, None, :3, 3])
             feat = torch.cat([(x_c - self.center) / self.extent, (x_root - x_c) / self.extent], -1)
             order = self.point_order
-            d_s, d_q, d_o, d_c = (
-                torch.empty(b, h.shape[1], h.shape[2], dtype=h.dtype, device=h.device)
-                .index_copy(2, order, h).transpose(1, 2)
-                for h in self.omega(feat[:, order].transpose(1, 2))
-            )
+            heads = self.omega(feat[:, order].transpose(1, 2))  # (B, P, k) in sequence order
+            d_s, d_q, d_o, d_c = (torch.empty_like(h).index_copy(1, order, h) for h in heads)
             scale_raw = scale_raw + d_s
             quat = quat + d_q
             opacity_raw = opacity_raw + d_o[..., 0]
@@ -299,8 +315,7 @@ class AvatarModel(nn.Module):
         smin = self.cfg.scale_min
         scales = smin + (self.scale_max_per_point()[None, :, None] - smin) * torch.sigmoid(scale_raw)
         q_c = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        q_lbs = roma.rotmat_to_unitquat(r_p)  # xyzw
-        quats = xyzw_to_wxyz(roma.quat_product(q_lbs, wxyz_to_xyzw(q_c)))
+        quats = quat_mul(q_p, q_c)
         return PosedGaussians(
             means=x_p, quats=quats, scales=scales, opacities=torch.sigmoid(opacity_raw),
             colors=sh, canonical=x_c, displacement=disp, normal_offset=l_off,

@@ -117,6 +117,23 @@ def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, 
     return colors, alphas, meta
 
 
+def _content_box(a: torch.Tensor, b: torch.Tensor, margin: int) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1) box around the True pixels of two (H, W) masks, plus ``margin``; at
+    least 16 pixels on each side (the SSIM window); the whole image when both are empty."""
+    h, w = a.shape
+    m = a | b
+    rows, cols = torch.nonzero(m.any(1)), torch.nonzero(m.any(0))
+    if len(rows) == 0:
+        return 0, h, 0, w
+    y0, y1 = int(rows[0]) - margin, int(rows[-1]) + 1 + margin
+    x0, x1 = int(cols[0]) - margin, int(cols[-1]) + 1 + margin
+    if y1 - y0 < 16:
+        y0, y1 = (y0 + y1) // 2 - 8, (y0 + y1) // 2 + 8
+    if x1 - x0 < 16:
+        x0, x1 = (x0 + x1) // 2 - 8, (x0 + x1) // 2 + 8
+    return max(y0, 0), min(y1, h), max(x0, 0), min(x1, w)
+
+
 @dataclass
 class Split:
     train_frames: np.ndarray  # indices into data.frames
@@ -193,11 +210,6 @@ class AvatarTrainer:
                        sh_degree)
         return out, g
 
-    def render_view(self, g, view_i: int):
-        return render_gaussians(self.rasterize, g, 0, self.viewmats[view_i:view_i + 1],
-                                self.Ks[view_i:view_i + 1], self.data.width, self.data.height,
-                                self.background, self.cfg.train.render_backend)
-
     def _sample(self) -> list[tuple[int, int]]:
         tf, tv = self.split.train_frames, self.split.train_views
         n = self.poses_per_step
@@ -207,53 +219,68 @@ class AvatarTrainer:
         vi = torch.randint(len(tv), (n,), generator=self.sampler)
         return [(int(tf[f]), int(tv[v])) for f, v in zip(fi, vi)]
 
-    def pose_loss(self, frame_i: int, view_i: int, sh_degree: int,
-                  with_reg: bool) -> tuple[torch.Tensor, dict[str, float], float, dict]:
-        """Loss of one render; returns (loss, terms, psnr, meta)."""
-        out, g = self.pose(torch.tensor([frame_i]), sh_degree)
-        colors, _, meta = self.render_view(g, view_i)
-        self.strategy.step_pre_backward(meta) if self.cfg.strategy.enabled else None
+    def image_terms(self, g, b: int, joints: torch.Tensor, frame_i: int, view_i: int
+                    ) -> tuple[dict[str, torch.Tensor], float, dict]:
+        """Loss terms of frame ``b`` of ``g`` seen from camera ``view_i``: (terms, psnr, meta)."""
+        vm = self.viewmats[view_i:view_i + 1]
+        colors, alphas, meta = render_gaussians(self.rasterize, g, b, vm,
+                                                self.Ks[view_i:view_i + 1], self.data.width,
+                                                self.data.height, self.background,
+                                                self.cfg.train.render_backend)
+        if self.cfg.strategy.enabled:
+            self.strategy.step_pre_backward(meta)
         render = colors[0].permute(2, 0, 1)[None].clamp(0, 1)
-        gt, _ = target(self.data, view_i, frame_i, self.background.cpu())
+        gt, mask = target(self.data, view_i, frame_i, self.background.cpu())
         gt = gt.to(self.device)[None]
+        # outside the box of (ground-truth mask or rendered alpha) both images are exactly the
+        # background: the image terms are computed on that box only (same minimum, less work)
+        y0, y1, x0, x1 = _content_box(mask[0].to(self.device) > 0.5,
+                                      alphas[0, ..., 0].detach() > 1.0 / 255.0, margin=6)
         c = self.cfg.loss
-        terms = image_loss(render, gt, c.w_l1, c.w_dssim, c.ssim_window, self.lpips, c.w_lpips)
+        terms = image_loss(render[..., y0:y1, x0:x1], gt[..., y0:y1, x0:x1], c.w_l1, c.w_dssim,
+                           c.ssim_window, self.lpips, c.w_lpips)
         if c.w_hand > 0:
             hand = []
             for part in ("left_hand", "right_hand"):
-                box = part_box(out.joints[0], part, self.viewmats[view_i], self.Ks[view_i],
+                box = part_box(joints, part, self.viewmats[view_i], self.Ks[view_i],
                                self.data.width, self.data.height, self.cfg.eval.crop_size.hands)
                 if box is not None:
                     x0, y0, x1, y1 = box
                     hand.append((render[..., y0:y1, x0:x1] - gt[..., y0:y1, x0:x1]).abs().mean())
             if hand:
                 terms["hand"] = c.w_hand * torch.stack(hand).mean()
-        if with_reg:
-            terms.update(self.regularizer(self.model, g))
-            terms.update(displacement_terms(self.model, g, self.cfg.regularize))
-        loss = sum(terms.values())
         with torch.no_grad():
             p = float(psnr(render, gt)[0])
-        return loss, {k: float(v.detach()) for k, v in terms.items()}, p, meta
+        return terms, p, meta
 
     # ------------------------------------------------------------------ step
     def train_step(self) -> dict[str, float]:
-        """One optimiser step over ``poses_per_step`` renders."""
+        """One optimiser step: the ``poses_per_step`` sampled frames are posed together (one
+        batched forward), each rendered from its sampled camera; the mean of their losses plus
+        the regularisation (on the first frame) is back-propagated once."""
         t0 = time.perf_counter()
         self.step += 1
         sh = sh_degree_at(self.step, self.cfg.train.iterations, self.cfg.model.sh_degree,
                           self.cfg.sh_schedule.rise_at)
         self.optimizer.zero_grad(set_to_none=True)
-        metas, total, terms_sum, psnrs = [], 0.0, {}, []
         pairs = self._sample()
-        for k, (fi, vi) in enumerate(pairs):
-            loss, terms, p, meta = self.pose_loss(fi, vi, sh, with_reg=(k == 0))
-            (loss / len(pairs)).backward()
+        out, g = self.pose(torch.tensor([f for f, _ in pairs]), sh)
+        metas, psnrs, losses, terms_sum = [], [], [], {}
+        n = len(pairs)
+        for b, (fi, vi) in enumerate(pairs):
+            terms, p, meta = self.image_terms(g, b, out.joints[b], fi, vi)
+            losses.append(sum(terms.values()))
             metas.append(meta)
-            total += float(loss.detach()) / len(pairs)
             psnrs.append(p)
             for name, v in terms.items():
-                terms_sum[name] = terms_sum.get(name, 0.0) + v / len(pairs)
+                terms_sum[name] = terms_sum.get(name, 0.0) + float(v.detach()) / n
+        reg = {**self.regularizer(self.model, g),
+               **displacement_terms(self.model, g, self.cfg.regularize)}
+        for name, v in reg.items():
+            terms_sum[name] = float(v.detach())
+        loss = torch.stack(losses).mean() + sum(reg.values())
+        loss.backward()
+        total = float(loss.detach())
         self.optimizer.step()
         stats = {"added": 0, "pruned": 0}
         if self.cfg.strategy.enabled:

@@ -52,7 +52,7 @@ def test_scales_bounded_per_part_and_displacement_bounded(tiny_body):
     model, cfg = _model(tiny_body)
     with torch.no_grad():
         model.scale_raw.fill_(50.0)
-        model.disp_net.heads[0].bias.fill_(100.0)
+        model.disp_net.head.bias.fill_(100.0)
         g = _pose(model, tiny_body, {"betas": torch.zeros(1, 10)})
     bound = model.scale_max_per_point()
     assert bool((g.scales[0] <= bound[:, None] + 1e-6).all())
@@ -75,8 +75,7 @@ def test_pose_dependent_switch_removes_omega(tiny_body):
     assert on.omega is not None and off.omega is None
     assert not any(n.startswith("omega") for n, _ in off.named_parameters())
     with torch.no_grad():  # make Omega's heads non-zero: attributes then depend on the pose
-        for h in on.omega.heads:
-            h.weight.normal_(0, 0.5)
+        on.omega.head.weight.normal_(0, 0.5)
     p = random_smplx(2, seed=3, scale=0.5)
     a = _pose(on, tiny_body, {k: v[:1] for k, v in p.items()})
     b = _pose(on, tiny_body, {k: v[1:] for k, v in p.items()})

@@ -58,7 +58,7 @@ def test_switch_off_gives_no_terms_and_builds_nothing(tiny_body):
     model_on, cfg_on = _model(tiny_body)
     with torch.no_grad():
         model_on.sh_dc.normal_()
-        model_on.disp_net.heads[0].bias.fill_(1.0)
+        model_on.disp_net.head.bias.fill_(1.0)
     g = model_on(out.v_shaped, out.vertices, out.transforms, None, 0)
     terms = Regularizer(cfg_on.regularize)(model_on, g)
     assert {"reg_scale", "reg_rotation", "reg_opacity", "reg_color"} <= set(terms)

@@ -107,7 +107,8 @@ def _write_scene(root, data, smplx_override):
         t = data.viewmats[vi, :3, 3].double().numpy()
         K = data.Ks[vi].double().numpy()
         cams.append(dict(scene="tiny", view=int(v), frame=-1, width=SIZE, height=SIZE,
-                         fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], R=list(R.ravel()),
+                         fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] - 0.5, cy=K[1, 2] - 0.5,
+                         R=list(R.ravel()),
                          t=list(t)))
         for fi, f in enumerate(data.frames):
             img = f"images/{vi:02d}/{fi:04d}.png"
