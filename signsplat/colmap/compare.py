@@ -49,6 +49,7 @@ COLMAP_COMPARE = register_table(Table(
         "focal_error_pct": "float64 mean |f - f_gt| / f_gt in percent (NaN when fixed/unknown)",
         "alignment": "str umeyama | orientation (degenerate centres) | '' (nothing to align)",
         "seconds": "float64 wall-clock seconds of the run",
+        "cpu_seconds": "float64 CPU seconds of the run over all threads (NaN when unknown)",
         "status": "str 'ok' or the reason of a failure (failed/error/crashed: ...)",
         "ply": "str PLY of the run's points in the world frame, relative to the table ('' none)",
     },
@@ -259,7 +260,8 @@ def colmap_row(scene: str, spec: RunSpec, setting: str, known_intrinsics: bool,
                views_registered=len({by_name[n].view for n in result.poses}),
                points3d=int(len(result.points)),
                reproj_error_px=float(result.reproj_error_px) if ok else np.nan,
-               **errors, seconds=float(result.seconds), status=result.status, ply="")
+               **errors, seconds=float(result.seconds), cpu_seconds=float(result.cpu_seconds),
+               status=result.status, ply="")
     return row, al
 
 
@@ -288,7 +290,7 @@ def fit_rows(scene: str, fit_cameras: pd.DataFrame, gt: GroundTruth,
     errors, _ = camera_error_columns(R_e, t_e, R_g, t_g)
     if focal:
         errors["focal_error_pct"] = float(np.mean(focal))
-    seconds, reproj, notes = fit_eval_figures(fit_eval)
+    seconds, cpu_seconds, reproj, notes = fit_eval_figures(fit_eval)
     if skipped:
         notes.append(f"{skipped} camera(s) without a solved pose")
     status = "ok" if len(R_e) >= 2 else f"failed: only {len(R_e)} solved camera(s)"
@@ -299,15 +301,16 @@ def fit_rows(scene: str, fit_cameras: pd.DataFrame, gt: GroundTruth,
     return [dict(scene=scene, method="smplx_camera_solve", setting=setting, frame=-1,
                  images=int(len(fit_cameras)), registered=len(R_e), views_registered=len(R_e),
                  points3d=None,
-                 reproj_error_px=reproj, **errors, seconds=seconds, status=status, ply="")]
+                 reproj_error_px=reproj, **errors, seconds=seconds, cpu_seconds=cpu_seconds,
+                 status=status, ply="")]
 
 
-def fit_eval_figures(fit_eval: pd.DataFrame | None) -> tuple[float, float, list[str]]:
-    """(seconds, mean reprojection px, notes) from the fitting stage's ``fit_eval`` table."""
+def fit_eval_figures(fit_eval: pd.DataFrame | None) -> tuple[float, float, float, list[str]]:
+    """(seconds, CPU seconds, mean reprojection px, notes) from the fit stage's ``fit_eval``."""
     if fit_eval is None or fit_eval.empty:
-        return np.nan, np.nan, ["no fit_eval.parquet: seconds unknown"]
+        return np.nan, np.nan, np.nan, ["no fit_eval.parquet: seconds unknown"]
     notes: list[str] = []
-    seconds = reproj = np.nan
+    seconds = cpu = reproj = np.nan
     cols = set(fit_eval.columns)
     if "seconds_total" in cols:
         seconds = float(fit_eval["seconds_total"].max())
@@ -318,17 +321,19 @@ def fit_eval_figures(fit_eval: pd.DataFrame | None) -> tuple[float, float, list[
             seconds = float(pick("seconds").iloc[0])
         if len(pick("reprojection")):
             reproj = float(pick("reprojection").iloc[0])
+        if len(pick("cpu_seconds")):
+            cpu = float(pick("cpu_seconds").iloc[0])
     if np.isnan(seconds):
         notes.append("fit_eval has no seconds")
-    return seconds, reproj, notes
+    return seconds, cpu, reproj, notes
 
 
 def to_frame(rows: list[dict]) -> pd.DataFrame:
     """Rows -> the typed ``colmap_compare`` DataFrame (columns in the table's order)."""
     df = pd.DataFrame(rows, columns=list(COLMAP_COMPARE.columns))
     return df.astype({"frame": "int32", "images": "int32", "registered": "int32",
-                      "views_registered": "int32",
-                      "points3d": "Int64", "seconds": "float64", "reproj_error_px": "float64"})
+                      "views_registered": "int32", "points3d": "Int64", "seconds": "float64",
+                      "cpu_seconds": "float64", "reproj_error_px": "float64"})
 
 
 def compare_scene(frames: pd.DataFrame, frames_dir: str | os.PathLike, cameras: pd.DataFrame,

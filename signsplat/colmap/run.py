@@ -89,7 +89,8 @@ class ColmapResult:
     intrinsics: image name -> (fx, fy, cx, cy) in pixels, OpenCV pixel centres.
     points: (N,3) float64 3D points; colors: (N,3) uint8 RGB.
     reproj_error_px: mean reprojection error over all observations (NaN when none).
-    seconds: wall-clock time of extraction + matching + mapping.
+    seconds: wall-clock time of extraction + matching + mapping; cpu_seconds: CPU time of the
+        same steps over all threads (steadier than wall time on a shared machine).
     status: 'ok', or 'failed: ...' / 'error: ...' / 'crashed: ...' with the reason.
     """
 
@@ -104,6 +105,7 @@ class ColmapResult:
     num_verified_pairs: int = 0  # image pairs with >= min_num_matches geometric inliers
     num_initial_pairs: int = 0  # initial pairs the mapper started a model from
     seconds: float = float("nan")
+    cpu_seconds: float = float("nan")
     status: str = "ok"
 
     @property
@@ -204,10 +206,10 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
     result = ColmapResult(num_images=len(images))
     if len(images) < 2:
         result.status = f"failed: {len(images)} input image(s), need at least 2"
-        result.seconds = 0.0
+        result.seconds = result.cpu_seconds = 0.0
         return result
     _stage_images(images, image_dir)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         reader = pycolmap.ImageReaderOptions()
         extraction = pycolmap.FeatureExtractionOptions()
@@ -241,9 +243,11 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
         result.num_initial_pairs = len(starts)
     except PYCOLMAP_ERRORS as exc:
         result.seconds = time.perf_counter() - t0
+        result.cpu_seconds = time.process_time() - c0
         result.status = f"error: {type(exc).__name__}: {str(exc).strip()[:300]}"
         return result
     result.seconds = time.perf_counter() - t0
+    result.cpu_seconds = time.process_time() - c0
     result.num_models = len(recs)
     if recs:
         best = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))

@@ -42,9 +42,10 @@ def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
                       metadata={"mode": "multiview", "keypoints": "ground_truth"})
     pd.DataFrame({  # the fitting stage's long layout (table fit_eval)
         "scene": "textured", "mode": "multiview", "keypoints": "ground_truth",
-        "metric": ["reprojection", "reprojection", "camera_rotation", "seconds"],
-        "part": ["all", "left_hand", "cameras", "all"], "value": [1.5, 3.0, 0.4, 12.5],
-        "unit": ["px", "px", "deg", "s"], "seconds_total": 12.5,
+        "metric": ["reprojection", "reprojection", "camera_rotation", "seconds", "cpu_seconds"],
+        "part": ["all", "left_hand", "cameras", "all", "all"],
+        "value": [1.5, 3.0, 0.4, 12.5, 20.0], "unit": ["px", "px", "deg", "s", "s"],
+        "seconds_total": 12.5,
         "seconds_per_frame": 6.25}).to_parquet(tmp_path / "fit_eval.parquet")
     out = tmp_path / "colmap" / "colmap_compare.parquet"
     code = main(["colmap-compare", "--frames", str(textured_rig / "frames.parquet"),
@@ -66,6 +67,8 @@ def test_cli_writes_table_plys_and_fit_row(textured_rig, tmp_path, capsys):
     assert fit_row["status"].startswith("ok (1 camera")
     assert fit_row["rot_error_deg"] == pytest.approx(0.5, abs=0.15)  # the injected noise
     assert fit_row["seconds"] == 12.5 and fit_row["reproj_error_px"] == 1.5
+    assert fit_row["cpu_seconds"] == 20.0
+    assert (colmap["cpu_seconds"] > 0).all()
     assert fit_row["focal_error_pct"] == pytest.approx(0.0)
     for rel in colmap["ply"]:
         cloud = trimesh.load(out.parent / rel)
