@@ -124,7 +124,8 @@ def max_angle_deg(pose_a: dict[str, np.ndarray], pose_b: dict[str, np.ndarray]) 
 
 def transition_length(pose_a: dict, pose_b: dict, config: StitchConfig) -> int:
     """Adaptive number of in-between frames, clamped to the configured range."""
-    n = math.ceil(max_angle_deg(pose_a, pose_b) / config.deg_per_frame - 1e-9)
+    # tolerance: float32 poses carry ~1e-5 degree noise, which must not add a frame
+    n = math.ceil(max_angle_deg(pose_a, pose_b) / config.deg_per_frame - 1e-4)
     return int(min(max(n, config.min_transition), config.max_transition))
 
 
@@ -144,7 +145,8 @@ def slerp_blocks(pose_a: dict[str, np.ndarray], pose_b: dict[str, np.ndarray],
             q = roma.unitquat_slerp(_quats(pose_a[block]), _quats(pose_b[block]), t,
                                     shortest_arc=True)
             q = q / q.norm(dim=-1, keepdim=True)
-            out[block] = roma.unitquat_to_rotvec(q).reshape(len(steps), -1).numpy()
+            k = np.asarray(pose_a[block]).size
+            out[block] = roma.unitquat_to_rotvec(q).reshape(len(steps), k).numpy()
         else:
             a = np.asarray(pose_a[block], np.float64)
             b = np.asarray(pose_b[block], np.float64)

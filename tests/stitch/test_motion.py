@@ -193,3 +193,13 @@ def test_write_stitched_table_streams_to_parquet(tmp_path, gloss_library):
     assert set(df.label) == {"HELLO", "FRIEND", "E", "transition"}
     assert M.write_stitched_table(iter(()), tmp_path / "empty.parquet", "x") == 0
     assert len(read_table(tmp_path / "empty.parquet", "smplx_params")) == 0
+
+
+def test_zero_length_transitions_are_allowed():
+    a = _clip("A", _body(0, [0.5, 0, 0]))
+    b = _clip("B", _body(0, [-0.5, 0, 0]))
+    cfg = M.StitchConfig(min_transition=0, max_transition=0, hold_start=0, hold_end=0)
+    out = M.stitch_clips([a, b], cfg)
+    assert list(out["label"]) == ["A"] * 3 + ["B"] * 3
+    assert M.slerp_blocks({"body_pose": np.zeros(63)}, {"body_pose": np.ones(63)},
+                          np.zeros(0))["body_pose"].shape == (0, 63)
