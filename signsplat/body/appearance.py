@@ -203,7 +203,8 @@ def _head_material(p: np.ndarray, j: np.ndarray) -> np.ndarray:
             dx = fx - e[0]
             dy = fy - e[1]
             brow_y = 0.022 + 0.004 * np.cos(np.clip(dx / 0.02, -1.6, 1.6))
-            m[(np.abs(dx) < 0.022) & (np.abs(dy - brow_y) < 0.0035) & (fz > e[2])] = BROW
+            m[(np.abs(dx - 0.002 * np.sign(e[0])) < 0.024) & (np.abs(dy - brow_y) < 0.0035)
+              & (fz > e[2])] = BROW
             cap = (fz > e[2] + 0.006) & (np.abs(dx) < 0.013)
             r2 = dx * dx + dy * dy
             m[cap & (np.abs(dy) < 0.0055)] = SCLERA

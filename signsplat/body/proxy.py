@@ -43,10 +43,12 @@ TARGET_VERTICES = 10475  # as SMPL-X
 # iBUG-68 face landmarks 17..67 (brows, nose, eyes, mouth) as (x, y) on the proxy's face;
 # they are projected onto the surface along -z. Subject's right is -x.
 def _static_landmark_xy() -> np.ndarray:
-    rb_x = [-0.055, -0.045, -0.034, -0.023, -0.012]
-    rb_y = [1.645, 1.652, 1.655, 1.655, 1.652]
+    eye_x, eye_y = rest_joints()[JI["left_eye"]][:2]
+    rb_x = np.array([-0.055, -0.045, -0.034, -0.023, -0.012])
+    # on the centre line of the painted brow arc (signsplat.body.appearance)
+    rb_y = eye_y + 0.022 + 0.004 * np.cos(np.clip((-rb_x - eye_x) / 0.02, -1.6, 1.6))
     pts = list(zip(rb_x, rb_y))
-    pts += list(zip([-x for x in rb_x[::-1]], rb_y[::-1]))
+    pts += list(zip(-rb_x[::-1], rb_y[::-1]))
     pts += [(0.0, y) for y in (1.632, 1.618, 1.604, 1.590)]
     pts += list(zip([-0.014, -0.007, 0.0, 0.007, 0.014], [1.580, 1.577, 1.576, 1.577, 1.580]))
     reye = [(-0.045, 1.627), (-0.036, 1.632), (-0.025, 1.632), (-0.018, 1.626),
