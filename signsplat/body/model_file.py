@@ -187,8 +187,13 @@ def load_model_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if lmk.min() < 0 or lmk.max() >= faces.shape[0]:
         raise BodyModelFileError(f"{path}: 'lmk_faces_idx' out of range 0..{faces.shape[0] - 1}")
     arrays["lmk_faces_idx"] = lmk
-    if "dynamic_lmk_faces_idx" in arrays:
-        arrays["dynamic_lmk_faces_idx"] = arrays["dynamic_lmk_faces_idx"].astype(np.int64)
+    for key, limit in (("dynamic_lmk_faces_idx", faces.shape[0]), ("kp_faces_idx", faces.shape[0]),
+                       ("kp_vertex_ids", V)):
+        if key in arrays:
+            idx = np.asarray(arrays[key]).astype(np.int64)
+            if idx.size and (idx.min() < 0 or idx.max() >= limit):
+                raise BodyModelFileError(f"{path}: '{key}' out of range 0..{limit - 1}")
+            arrays[key] = idx
     try:
         split_shapedirs(arrays)
     except ValueError as exc:
