@@ -136,7 +136,8 @@ class BodyModel(nn.Module):
     Attributes: ``faces`` (F, 3) long, ``v_template`` (V, 3), ``parents`` (55,) long,
     ``lbs_weights`` (V, 55), ``part_labels`` (V,) long, ``vertex_colors`` (V, 3) or None,
     ``rest_joints`` (55, 3) joints of the template, ``num_betas``, ``num_expression``,
-    ``hand_mean`` ('flat' or 'mano'), ``kp_surface_points`` (name -> (3 vertex ids, 3
+    ``hand_mean`` ('flat' or 'mano'), ``shape_names`` / ``expression_names`` (tuples of the
+    directions' names, or None), ``kp_surface_points`` (name -> (3 vertex ids, 3
     barycentric weights), from the file's ``kp_*`` keys) or None.
     """
 
@@ -196,6 +197,11 @@ class BodyModel(nn.Module):
         else:
             self.register_buffer("dynamic_lmk_faces_idx", None)
             self.register_buffer("dynamic_lmk_bary_coords", None)
+        # names of the shape/expression directions when the file has them (the proxy does)
+        self.shape_names = tuple(str(n) for n in arrays["shape_names"])[: self.num_betas] \
+            if "shape_names" in arrays else None
+        self.expression_names = tuple(str(n) for n in arrays["expression_names"])[
+            : self.num_expression] if "expression_names" in arrays else None
         # named surface points for keypoints: name -> (3 vertex ids, 3 weights)
         self.kp_surface_points: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
         faces_np = np.asarray(arrays["f"], dtype=np.int64)

@@ -189,6 +189,9 @@ def _len(out, a, b):
 
 
 def test_shape_directions_have_their_named_effects(model):
+    from signsplat.body._proxy_rig import EXPRESSION_NAMES, SHAPE_NAMES
+
+    assert model.shape_names == SHAPE_NAMES and model.expression_names == EXPRESSION_NAMES
     base = model()
     h0 = np.ptp(base.vertices[0, :, 1].numpy())
     tall = _named(model, "betas", "height")
