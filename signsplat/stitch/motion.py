@@ -60,9 +60,9 @@ class StitchConfig:
             hold_end + hold_start there).
     """
 
-    deg_per_frame: float = 6.0
+    deg_per_frame: float = 8.0
     min_transition: int = 3
-    max_transition: int = 15
+    max_transition: int = 20
     hold_start: int = 2
     hold_end: int = 2
     letter_hold: int = 1
