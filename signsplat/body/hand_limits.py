@@ -242,7 +242,7 @@ def _parse_order(order: str) -> tuple[int, int, int, float]:
 
 
 def euler_to_axis_angle(euler: torch.Tensor, order: str = EULER_ORDER) -> torch.Tensor:
-    """Intrinsic Euler angles (..., 3) in radians (angle of ``order[0]`` first) -> axis-angle (..., 3).
+    """Intrinsic Euler angles (..., 3), radians, ``order[0]``'s angle first -> axis-angle (..., 3).
 
     ``R = R_{order[0]}(a) @ R_{order[1]}(b) @ R_{order[2]}(c)``. Differentiable everywhere
     (also at the zero rotation).
@@ -282,7 +282,7 @@ def rotmat_to_euler(rotmat: torch.Tensor, order: str = EULER_ORDER,
 
 
 def axis_angle_to_euler(axis_angle: torch.Tensor, order: str = EULER_ORDER) -> torch.Tensor:
-    """Axis-angle (..., 3) -> intrinsic Euler angles (..., 3) in radians; see :func:`rotmat_to_euler`."""
+    """Axis-angle (..., 3) -> intrinsic Euler angles (..., 3), radians (:func:`rotmat_to_euler`)."""
     return rotmat_to_euler(roma.rotvec_to_rotmat(axis_angle), order)
 
 

@@ -88,7 +88,8 @@ def test_ik_reaches_contact_points():
         sx = -1.0 if side == "right" else 1.0
         shoulder = np.array(gb.STANDARD.shoulder) * [sx, 1, 1]
         tgt = shoulder + rng.normal(size=(100, 3)) * 0.12 + [-sx * 0.15, -0.15, 0.25]
-        reach = np.linalg.norm(tgt - shoulder, axis=1) < gb.STANDARD.upper_arm + gb.STANDARD.forearm - 0.01
+        arm = gb.STANDARD.upper_arm + gb.STANDARD.forearm
+        reach = np.linalg.norm(tgt - shoulder, axis=1) < arm - 0.01
         rot = np.stack([gb.hand_rotation(rng.normal(size=3), rng.normal(size=3), side)
                         for _ in range(100)])
         s, e, w = gb.arm_ik(tgt, rot, side)
