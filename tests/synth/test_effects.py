@@ -87,29 +87,8 @@ def test_options_get_defaults_and_keep_given_values():
 
 # --- effects off cost nothing ------------------------------------------------------------------
 
-def spy_registry(monkeypatch):
-    """Replace every registered effect by a subclass counting constructions and hook calls."""
-    counts = {}
-    for name, cls in list(fx.REGISTRY.items()):
-        counts[name] = {"init": 0, "calls": 0}
-
-        def make(cls=cls, c=counts[name]):
-            def __init__(self, *a, **k):
-                c["init"] += 1
-                cls.__init__(self, *a, **k)
-
-            def hook(self, *a, **k):
-                c["calls"] += 1
-                return getattr(cls, cls.hook)(self, *a, **k)
-
-            return type("Spy" + cls.__name__, (cls,), {"__init__": __init__, cls.hook: hook})
-
-        monkeypatch.setitem(fx.REGISTRY, name, make())
-    return counts
-
-
-def test_unlisted_effects_are_never_built_or_called(monkeypatch):
-    counts = spy_registry(monkeypatch)
+def test_unlisted_effects_are_never_built_or_called(spy_effects):
+    counts = spy_effects
     chain = build_effects(["lighting", {"sensor_noise": {"sigma": 0.02}}])
     cams = rig()
     for view in range(2):

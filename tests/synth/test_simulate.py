@@ -248,3 +248,12 @@ def test_joint_keypoints_must_see_their_own_body_part():
     vis = keypoint_visibility(uv[:1], z[:1], depth, 0.1, radius=0, face=face + 5,
                               face_joint=face_joint, allowed=allowed[:1])
     assert not vis[0]
+
+
+def test_a_scene_builds_and_calls_only_its_effects(assets, tmp_path, spy_effects):
+    s = tiny(max_frames=2, effects=["lighting", {"occluder": {"views": [1]}}])
+    simulate_scene(s, *assets, tmp_path, threads=2, progress=False)
+    assert spy_effects["lighting"] == {"init": 1, "calls": 2 * 2}  # once per image
+    assert spy_effects["occluder"] == {"init": 1, "calls": 2 * 2}  # asked in every view
+    for name in ("background", "sensor_noise", "motion_blur", "camera_jitter"):
+        assert spy_effects[name] == {"init": 0, "calls": 0}, name
