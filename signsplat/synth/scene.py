@@ -150,11 +150,10 @@ def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: floa
         if clip.hand_mean != "flat":
             raise SceneError(f"motion.glosses: gloss {g!r} stores hand poses relative to the "
                              f"MANO mean ({clip.hand_mean!r}); the simulator needs 'flat'")
-        if abs(float(clip.fps) - fps) > 1e-6:
-            clip = replace(clip, fps=fps, poses={
-                k: _resample(np.asarray(v, np.float64), float(clip.fps), fps).astype(np.float32)
-                for k, v in clip.poses.items()})
-        clips.append(clip)
+        # writable float32 copies (tables read from Parquet are read-only), resampled to fps
+        clips.append(replace(clip, fps=fps, poses={
+            k: _resample(np.asarray(v, np.float64), float(clip.fps), fps).astype(np.float32)
+            for k, v in clip.poses.items()}))
     return _stitch(clips, hold_frames, transition_frames)
 
 
