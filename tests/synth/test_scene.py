@@ -20,7 +20,8 @@ def spec(**over):
     return validate(base, "scene.schema.yaml", "test")
 
 
-@pytest.mark.parametrize("name", ["studio6", "single", "tiny"])
+@pytest.mark.parametrize("name", sorted({"studio6", "single", "tiny"} | {
+    p.stem for p in (ROOT / "config" / "scenes").glob("*.yaml")}))
 def test_shipped_scenes_are_valid(name):
     s = load_scene(ROOT / "config" / "scenes" / f"{name}.yaml")
     assert s["name"] == name
