@@ -137,7 +137,8 @@ def skinning_weights(verts: np.ndarray, faces: np.ndarray, owner: np.ndarray,
             wb = s.copy()
         kids = children[b]
         if kids:
-            dist = np.stack([_seg_dist(pts, joints[c], joints[c] + length[c] * u[c]) for c in kids], 1)
+            dist = np.stack([_seg_dist(pts, joints[c], joints[c] + length[c] * u[c])
+                             for c in kids], 1)
             near = np.asarray(kids)[dist.argmin(axis=1)]
             for c in kids:
                 sel = near == c

@@ -107,7 +107,8 @@ def fingertips() -> dict[str, np.ndarray]:
     out = {}
     for finger in FINGER_NAMES:
         spec = finger_spec(finger)
-        out[finger] = j[JOINT_INDEX[f"left_{finger}3"]] + spec["lengths"][2] * finger_direction(finger)
+        d = finger_direction(finger)
+        out[finger] = j[JOINT_INDEX[f"left_{finger}3"]] + spec["lengths"][2] * d
     return out
 
 
@@ -174,13 +175,15 @@ def _left_prims(j: np.ndarray) -> list[Prim]:
                    "left_collar", "collar"))
     P.append(_ell(sh + (0.02, 0.005, 0.0), (0.065, 0.06, 0.058), 0.03, "left_shoulder", "deltoid"))
     P.append(_cone(sh, el, 0.050, 0.038, 0.03, "left_shoulder", "upper_arm"))
-    P.append(_ell(el + (0.06, 0.0, 0.0), (0.07, 0.040, 0.042), 0.025, "left_elbow", "forearm_muscle"))
+    P.append(_ell(el + (0.06, 0.0, 0.0), (0.07, 0.040, 0.042), 0.025, "left_elbow",
+                  "forearm_muscle"))
     P.append(_cone(el, wr, 0.037, 0.026, 0.02, "left_elbow", "forearm"))
     # hand: palm as a rounded box, thenar pad, fingers as round cones with knuckle spheres
     P.append(_box(wr + (0.049, -0.004, -0.003), (0.035, 0.0025, 0.0265), 0.0105, 0.010,
                   "left_wrist", "palm"))
     P.append(_ell(wr + (0.012, -0.003, 0.0), (0.022, 0.014, 0.030), 0.012, "left_wrist", "heel"))
-    P.append(_ell(wr + (0.040, -0.010, 0.022), (0.030, 0.011, 0.015), 0.008, "left_wrist", "thenar"))
+    P.append(_ell(wr + (0.040, -0.010, 0.022), (0.030, 0.011, 0.015), 0.008, "left_wrist",
+                  "thenar"))
     for finger in FINGER_NAMES:
         spec = finger_spec(finger)
         d = finger_direction(finger)

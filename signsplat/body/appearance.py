@@ -213,7 +213,8 @@ def _head_material(p: np.ndarray, j: np.ndarray) -> np.ndarray:
             m[cap & (np.abs(dy - 0.0058) < 0.0012)] = LASH
         mat[front] = m
     mouth_y = j[JI["jaw"]][1] + 0.004
-    mouth = np.nonzero((np.abs(y - mouth_y) < 0.0095) & (np.abs(x) < 0.025) & (z > eye_z + 0.005))[0]
+    mouth = (np.abs(y - mouth_y) < 0.0095) & (np.abs(x) < 0.025) & (z > eye_z + 0.005)
+    mouth = np.nonzero(mouth)[0]
     if len(mouth):
         mx, dy = x[mouth], y[mouth] - mouth_y
         lips = (mx / 0.025) ** 2 + (dy / 0.0095) ** 2 < 1.0

@@ -187,8 +187,10 @@ class BodyModel(nn.Module):
             self.register_buffer("vertex_colors", None)
         for side in ("l", "r"):
             self.register_buffer(f"hands_components_{side}", f(arrays[f"hands_components{side}"]))
-            self.register_buffer(f"hands_mean_{side}", f(np.asarray(arrays[f"hands_mean{side}"]).reshape(45)))
-        self.register_buffer("lmk_faces_idx", torch.as_tensor(arrays["lmk_faces_idx"], dtype=torch.long))
+            mean = np.asarray(arrays[f"hands_mean{side}"]).reshape(45)
+            self.register_buffer(f"hands_mean_{side}", f(mean))
+        self.register_buffer("lmk_faces_idx",
+                             torch.as_tensor(arrays["lmk_faces_idx"], dtype=torch.long))
         self.register_buffer("lmk_bary_coords", f(arrays["lmk_bary_coords"]))
         if "dynamic_lmk_faces_idx" in arrays and "dynamic_lmk_bary_coords" in arrays:
             self.register_buffer("dynamic_lmk_faces_idx",

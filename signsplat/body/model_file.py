@@ -174,7 +174,8 @@ def load_model_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     kin[kin == ROOT_PARENT_OFFICIAL] = -1
     kin[0, 0] = -1 if kin[0, 0] in (-1, ROOT_PARENT_OFFICIAL) else kin[0, 0]
     parents = kin[0]
-    if parents[0] != -1 or np.any(parents[1:] < 0) or np.any(parents[1:] >= np.arange(1, NUM_JOINTS)):
+    later = parents[1:] >= np.arange(1, NUM_JOINTS)
+    if parents[0] != -1 or np.any(parents[1:] < 0) or np.any(later):
         raise BodyModelFileError(f"{path}: 'kintree_table' row 0 is not a valid parent list "
                                  f"(root -1, every parent before its child): {parents.tolist()}")
     arrays["kintree_table"] = kin

@@ -200,19 +200,24 @@ def test_shape_directions_have_their_named_effects(model):
     leg = _named(model, "betas", "leg_length")
     assert _len(leg, "left_hip", "left_ankle") > _len(base, "left_hip", "left_ankle") + 0.03
     arm = _named(model, "betas", "arm_length")
-    assert _len(arm, "left_shoulder", "left_wrist") > _len(base, "left_shoulder", "left_wrist") + 0.03
+    assert _len(arm, "left_shoulder", "left_wrist") > \
+        _len(base, "left_shoulder", "left_wrist") + 0.03
     assert abs(_len(arm, "left_hip", "left_ankle") - _len(base, "left_hip", "left_ankle")) < 1e-6
     hand = _named(model, "betas", "hand_size")
-    assert _len(hand, "left_wrist", "left_middle3") > 1.05 * _len(base, "left_wrist", "left_middle3")
+    assert _len(hand, "left_wrist", "left_middle3") > \
+        1.05 * _len(base, "left_wrist", "left_middle3")
     fing = _named(model, "betas", "finger_length")
-    assert _len(fing, "left_middle1", "left_middle3") > 1.07 * _len(base, "left_middle1", "left_middle3")
+    assert _len(fing, "left_middle1", "left_middle3") > \
+        1.07 * _len(base, "left_middle1", "left_middle3")
     sh = _named(model, "betas", "shoulder_width")
-    assert _len(sh, "left_shoulder", "right_shoulder") > _len(base, "left_shoulder", "right_shoulder") + 0.02
+    assert _len(sh, "left_shoulder", "right_shoulder") > \
+        _len(base, "left_shoulder", "right_shoulder") + 0.02
     girth = _named(model, "betas", "girth")
     assert np.ptp(girth.vertices[0, :, 2].numpy()) > np.ptp(base.vertices[0, :, 2].numpy()) + 0.01
     head = _named(model, "betas", "head_size")
     skull = base.vertices[0, :, 1].numpy() > model.rest_joints[JI["left_eye"], 1].item()
-    assert np.ptp(head.vertices[0, skull, 0].numpy()) > 1.04 * np.ptp(base.vertices[0, skull, 0].numpy())
+    width = lambda out: np.ptp(out.vertices[0, skull, 0].numpy())  # noqa: E731
+    assert width(head) > 1.04 * width(base)
     neck = _named(model, "betas", "neck_length")
     assert _len(neck, "neck", "head") > _len(base, "neck", "head") + 0.005
     # every direction does something, and the joints follow the surface
@@ -247,8 +252,9 @@ def test_pose_correctives_small_and_local(model):
     assert feat_off.abs().max() == 0
     from signsplat.body.model import axis_angle_to_matrix
 
-    R = axis_angle_to_matrix(torch.cat([torch.zeros(1, 3, dtype=torch.float64), bp,
-                                        torch.zeros(1, 99, dtype=torch.float64)], 1).reshape(1, 55, 3))
+    full = torch.cat([torch.zeros(1, 3, dtype=torch.float64), bp,
+                      torch.zeros(1, 99, dtype=torch.float64)], 1)
+    R = axis_angle_to_matrix(full.reshape(1, 55, 3))
     feat = (R[:, 1:] - torch.eye(3, dtype=torch.float64)).reshape(1, -1)
     off = (feat @ model.posedirs).reshape(-1, 3).norm(dim=1).numpy()
     assert 1e-3 < off.max() < 0.01
