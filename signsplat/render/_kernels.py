@@ -42,6 +42,7 @@ from ._constants import (
 )
 
 TILE = CPU_TILE  # compile-time constant: the pixel loop is exactly one 16-lane row
+HALF_ROW = TILE // 2
 
 
 def _renamed(fn, suffix: str):
@@ -837,8 +838,8 @@ def bin_fill(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, offsets, 
 
 NP = TILE * TILE
 # forward fields
-_F_T = 0      # transmittance; 0 once the pixel is finished
-_F_TF = 1     # final transmittance of finished pixels
+_F_T = 0      # transmittance; -T once the pixel is finished
+_F_TF = 1     # (unused)
 _F_LAST = 2   # index (relative to the tile's list) of the last Gaussian composited, -1: none
 _F_PX = 3     # pixel centre x
 _F_PY = 4     # pixel centre y
@@ -853,6 +854,18 @@ _B_PY = 4
 _B_W = 5
 _B_GD = 6     # <v_C, c> over channels >= 4
 _B_VC = 7     # dL/d render_colors per channel
+
+
+def _off(field: int) -> np.uint64:
+    # unsigned offsets: with a signed index Numba emits negative-index wraparound code, which
+    # stops LLVM from vectorising the loop
+    return np.uint64(field * NP)
+
+
+_O_T, _O_TF, _O_LAST, _O_PX, _O_PY, _O_W = (_off(f) for f in range(6))
+_O_ACC0, _O_ACC1, _O_ACC2, _O_ACC3 = (_off(_F_ACC + k) for k in range(4))
+_OB_T, _OB_Q, _OB_LAST, _OB_PX, _OB_PY, _OB_W, _OB_GD = (_off(f) for f in range(7))
+_OB_VC0, _OB_VC1, _OB_VC2, _OB_VC3 = (_off(_B_VC + k) for k in range(4))
 
 
 @njit(cache=True, inline="always")
@@ -871,15 +884,24 @@ def _row_range(my, ry, y0, height):
 
 
 @njit(cache=True, inline="always")
-def _row_misses(dy, mx, x0, cb, inv_ca, s_c, level, T):
-    """True when, on the row at vertical offset ``dy = my - py``, the ellipse
-    ``sigma <= level`` lies entirely outside the tile's pixel centres (1 px margin)."""
+def _row_lanes(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
+    """Lanes [a, b) of the tile row at vertical offset ``dy = my - py`` to evaluate: the halves
+    (8 pixels) of the row that the ellipse ``sigma <= level`` can reach (1 px margin), clipped
+    to the row length ``xw``; a >= b when the row can be skipped."""
     smin = T(0.5) * dy * dy * s_c
-    if smin > level:
-        return True
-    h = math.sqrt(T(2.0) * (level - smin) * inv_ca)
-    centre = mx + cb * dy * inv_ca
-    return centre + h < T(x0) - T(0.5) or centre - h > T(x0 + TILE) + T(0.5)
+    if not (smin <= level):
+        return 0, 0
+    h = math.sqrt(T(2.0) * (level - smin) * inv_ca) + T(1.0)
+    centre = mx + cb * dy * inv_ca - T(x0)  # tile-relative; pixel i has its centre at i + 0.5
+    lo = centre - h
+    hi = centre + h
+    a = 0 if lo <= T(HALF_ROW) - T(0.5) else HALF_ROW
+    b = TILE if hi >= T(HALF_ROW) + T(0.5) else HALF_ROW
+    if hi < T(0.5) or lo > T(TILE) - T(0.5):
+        return 0, 0
+    if b > xw:
+        b = xw
+    return a, b
 
 
 @njit(cache=True, inline="always")
@@ -902,8 +924,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     [C*N], colors [C*N or N, D]. Outputs: out_color [C, H, W, D] (background included),
     out_T [C, H, W] final transmittance, out_last [C, H, W] index (into flat_ids) of the last
     Gaussian composited (-1: none), pair_counts[tile] = (pixel, Gaussian) pairs evaluated.
-    Finished pixels carry T = 0 (their final T is kept in another field), so they drop out of
-    the ``valid`` mask without a branch.
+    Finished pixels carry -T, so they drop out of the ``valid`` mask without a branch.
     """
     D = out_color.shape[3]
     DI = min(D, 4)
@@ -934,6 +955,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                 if y0 + y >= height or x0 + x >= width:  # outside the image: finished
                     rowdone[y] += 1
                     ndone += 1
+                    buf[_F_T * NP + p] = T(-1.0)
                 else:
                     buf[_F_T * NP + p] = T(1.0)
         npairs = 0
@@ -962,36 +984,40 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             for y in range(lo, hi):
                 if rowdone[y] >= TILE:
                     continue
-                if _row_misses(my - (T(y0 + y) + T(0.5)), mx, x0, cb, inv_ca, s_c, level, T):
+                la, lb = _row_lanes(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
+                                    level, T)
+                if la >= lb:
                     continue
-                npairs += TILE
+                npairs += lb - la
                 nterm = 0
-                pb = np.uint64(y * TILE)
-                pe = pb + np.uint64(xw)
+                pb = np.uint64(y * TILE + la)
+                pe = np.uint64(y * TILE + lb)
                 for p in range(pb, pe):
-                    dx = mx - buf[_F_PX * NP + p]
-                    dy = my - buf[_F_PY * NP + p]
+                    dx = mx - buf[_O_PX + p]
+                    dy = my - buf[_O_PY + p]
                     sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
                     al = min(amax, op * exp_neg(sig))
-                    t = buf[_F_T * NP + p]
+                    t = buf[_O_T + p]
                     valid = (sig >= T(0.0)) & (al >= thr) & (t > T(0.0))
                     nt = t * (T(1.0) - al)
                     term = valid & (nt <= tthr)
                     contrib = valid & (nt > tthr)
                     w = al * t if contrib else T(0.0)
-                    buf[_F_T * NP + p] = nt if contrib else (T(0.0) if term else t)
-                    buf[_F_TF * NP + p] = t if term else buf[_F_TF * NP + p]
-                    buf[_F_LAST * NP + p] = jr if contrib else buf[_F_LAST * NP + p]
-                    buf[_F_W * NP + p] = w
-                    buf[(_F_ACC + 0) * NP + p] += w * c0
-                    buf[(_F_ACC + 1) * NP + p] += w * c1
-                    buf[(_F_ACC + 2) * NP + p] += w * c2
-                    buf[(_F_ACC + 3) * NP + p] += w * c3
+                    # finished pixels keep -T (so t > 0 fails): no extra field, no branch
+                    buf[_O_T + p] = nt if contrib else (-t if term else t)
+                    buf[_O_LAST + p] = jr if contrib else buf[_O_LAST + p]
+                    buf[_O_W + p] = w
+                    buf[_O_ACC0 + p] += w * c0
+                    buf[_O_ACC1 + p] += w * c1
+                    buf[_O_ACC2 + p] += w * c2
+                    if DI > 3:
+                        buf[_O_ACC3 + p] += w * c3
                     nterm += np.int64(term)
                 for k in range(4, D):
                     ck = colors[ci, k]
+                    ok = np.uint64((_F_ACC + k) * NP)
                     for p in range(pb, pe):
-                        buf[(_F_ACC + k) * NP + p] += buf[_F_W * NP + p] * ck
+                        buf[ok + p] += buf[_O_W + p] * ck
                 rowdone[y] += nterm
                 ndone += nterm
         pair_counts[tid] = npairs
@@ -1000,7 +1026,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
         for y in range(ymax):
             for x in range(xmax):
                 p = y * TILE + x
-                tf = buf[_F_T * NP + p] + buf[_F_TF * NP + p]
+                tf = abs(buf[_F_T * NP + p])
                 out_T[c, y0 + y, x0 + x] = tf
                 lr = buf[_F_LAST * NP + p]
                 out_last[c, y0 + y, x0 + x] = np.int32(start + np.int64(lr)) if lr >= T(0.0) \
@@ -1116,40 +1142,43 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             for y in range(lo, hi):
                 if rowmax[y] < j:
                     continue
-                if _row_misses(my - (T(y0 + y) + T(0.5)), mx, x0, cb, inv_ca, s_c, level, T):
+                la, lb = _row_lanes(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
+                                    level, T)
+                if la >= lb:
                     continue
                 touched = True
-                pb = np.uint64(y * TILE)
-                pe = pb + np.uint64(xw)
+                pb = np.uint64(y * TILE + la)
+                pe = np.uint64(y * TILE + lb)
                 if D > 4:
                     for p in range(pb, pe):
-                        buf[_B_GD * NP + p] = T(0.0)
+                        buf[_OB_GD + p] = T(0.0)
                     for k in range(4, D):
                         ck = colors[ci, k]
+                        ok = np.uint64((_B_VC + k) * NP)
                         for p in range(pb, pe):
-                            buf[_B_GD * NP + p] += buf[(_B_VC + k) * NP + p] * ck
+                            buf[_OB_GD + p] += buf[ok + p] * ck
                 for p in range(pb, pe):
-                    dx = mx - buf[_B_PX * NP + p]
-                    dy = my - buf[_B_PY * NP + p]
+                    dx = mx - buf[_OB_PX + p]
+                    dy = my - buf[_OB_PY + p]
                     sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
                     G = exp_neg(sig)
                     alr = op * G
                     al = min(amax, alr)
-                    valid = (buf[_B_LAST * NP + p] >= jr) & (sig >= T(0.0)) & (al >= thr)
+                    valid = (buf[_OB_LAST + p] >= jr) & (sig >= T(0.0)) & (al >= thr)
                     ra = T(1.0) / (T(1.0) - al)
-                    t = buf[_B_T * NP + p]
+                    t = buf[_OB_T + p]
                     ti = t * ra
                     w = al * ti if valid else T(0.0)
-                    vc0 = buf[(_B_VC + 0) * NP + p]
-                    vc1 = buf[(_B_VC + 1) * NP + p]
-                    vc2 = buf[(_B_VC + 2) * NP + p]
-                    vc3 = buf[(_B_VC + 3) * NP + p]
-                    gd = vc0 * c0 + vc1 * c1 + vc2 * c2 + vc3 * c3 + buf[_B_GD * NP + p]
-                    q = buf[_B_Q * NP + p]
+                    vc0 = buf[_OB_VC0 + p]
+                    vc1 = buf[_OB_VC1 + p]
+                    vc2 = buf[_OB_VC2 + p]
+                    vc3 = buf[_OB_VC3 + p]
+                    gd = vc0 * c0 + vc1 * c1 + vc2 * c2 + vc3 * c3 + buf[_OB_GD + p]
+                    q = buf[_OB_Q + p]
                     v_al = ti * gd - q * ra
-                    buf[_B_T * NP + p] = ti if valid else t
-                    buf[_B_Q * NP + p] = q + w * gd
-                    buf[_B_W * NP + p] = w
+                    buf[_OB_T + p] = ti if valid else t
+                    buf[_OB_Q + p] = q + w * gd
+                    buf[_OB_W + p] = w
                     v0 += w * vc0
                     v1 += w * vc1
                     v2 += w * vc2
@@ -1168,8 +1197,9 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     a_my += abs(gy)
                 for k in range(4, D):
                     s = T(0.0)
+                    ok = np.uint64((_B_VC + k) * NP)
                     for p in range(pb, pe):
-                        s += buf[_B_W * NP + p] * buf[(_B_VC + k) * NP + p]
+                        s += buf[_OB_W + p] * buf[ok + p]
                     vcol[k] += s
             if touched:
                 gb = gbuf[th, fi]
