@@ -348,6 +348,9 @@ class AvatarTrainer:
             bar.update(1)
             bar.set_postfix(loss=f"{row['loss']:.4f}", psnr=f"{row['psnr']:.2f}",
                             n=row["num_points"], refresh=False)
+            if not progress and self.step % (10 * self.cfg.train.log_every) == 0:
+                log.info("step %d/%d  %.0f s  loss %.4f  PSNR %.2f dB  %d points", self.step,
+                         total, self.seconds, row["loss"], row["psnr"], row["num_points"])
             if checkpoint and self.step % self.cfg.train.checkpoint_every == 0:
                 self.save_checkpoint(checkpoint)
         bar.close()
