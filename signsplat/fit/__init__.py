@@ -7,6 +7,9 @@ Modules
 - :mod:`cameras`    camera parametrisation, projection and initialisation without ground truth.
 - :mod:`bodyfit`    differentiable keypoints from fit parameters (body model + hand limits).
 - :mod:`objective`  the loss terms, each weight a named config field.
+- :mod:`solver`     Adam / L-BFGS stages, batched over frames, chunked warm start.
+- :mod:`sequence`   fitted / interpolated / missing frames and gap filling.
+- :mod:`data`       reading inputs and writing ``smplx_fit`` / ``cameras_fit`` tables.
 - :mod:`multiview`  joint body + camera solve over a sequence.
 - :mod:`singleview` initialiser interface, default initialiser, low-learning-rate refinement.
 - :mod:`evaluate`   accuracy metrics against ground truth (MPJPE, PA-MPJPE, cameras, jitter).

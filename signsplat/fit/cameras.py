@@ -169,3 +169,24 @@ def rig_prior(K: np.ndarray, width, height, count: int, arc_degrees: float, dist
         ts.append(t)
     return Rig(K=np.asarray(K, float), R=np.stack(Rs), t=np.stack(ts),
                width=np.asarray(width), height=np.asarray(height))
+
+
+def rig_up_direction(R: np.ndarray, min_spread: float = 0.1) -> np.ndarray | None:
+    """World vertical of a rig of level cameras (no roll), in the rig's world frame.
+
+    A level camera's image x axis (row 0 of ``R``) is horizontal, so the vertical is the
+    direction most orthogonal to every camera's x axis (smallest right singular vector); its
+    sign makes it point against the cameras' image-down axes. R (V,3,3). Returns a unit (3,)
+    vector, or None when the x axes do not span a plane (fewer than 2 distinct directions,
+    e.g. one camera or parallel cameras).
+    """
+    X = np.asarray(R, float)[:, 0, :]
+    if len(X) < 2:
+        return None
+    _, sv, vt = np.linalg.svd(X)
+    if sv[1] < min_spread * max(sv[0], 1e-12):
+        return None
+    up = vt[-1]
+    if up @ (-np.asarray(R, float)[:, 1, :].sum(0)) < 0:
+        up = -up
+    return up / np.linalg.norm(up)

@@ -23,7 +23,7 @@ import torch
 from signsplat.body import joints as J
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
-from signsplat.fit.cameras import CameraParams, Rig, pnp, rig_prior
+from signsplat.fit.cameras import CameraParams, Rig, pnp, rig_prior, rig_up_direction
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 
@@ -121,8 +121,12 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
                        device=device, init={"body_pose": rest_body_pose(cfg, T)})
+    solved_R = rig0.R[[v for v in range(V) if status[v] == "pnp"]]
+    up = rig_up_direction(solved_R) if mv["level_cameras"] else None
+    log.info("world vertical for the upright prior: %s",
+             "body frame +y" if up is None else np.round(up, 4).tolist())
     problem = make_problem(kpm, obs, cfg, frames, weights={"upright": mv["upright_weight"]},
-                           dtype=dtype, device=device)
+                           dtype=dtype, device=device, up=up)
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

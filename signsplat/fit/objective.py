@@ -141,18 +141,20 @@ def rest_pose_vector(rest_pose: dict[str, list[float]] | None, dtype=torch.float
     return out
 
 
-def upright(global_orient: torch.Tensor) -> torch.Tensor:
-    """Sum over frames of |R(global_orient) e_y - e_y|^2 (pelvis tilt away from world up)."""
+def upright(global_orient: torch.Tensor, up: torch.Tensor | None = None) -> torch.Tensor:
+    """Sum over frames of |R(global_orient) e_y - up|^2: the pelvis tilt away from ``up`` (3,)
+    (the world's vertical in the fit frame; default +y)."""
     import roma
 
-    up = roma.rotvec_to_rotmat(global_orient)[..., :, 1]
-    e = torch.zeros_like(up)
-    e[..., 1] = 1.0
-    return ((up - e) ** 2).sum()
+    pelvis_up = roma.rotvec_to_rotmat(global_orient)[..., :, 1]
+    if up is None:
+        up = torch.zeros(3, dtype=pelvis_up.dtype, device=pelvis_up.device)
+        up[1] = 1.0
+    return ((pelvis_up - up) ** 2).sum()
 
 
-def priors(params, w: Weights, pose_w: torch.Tensor, pose_mean: torch.Tensor | None = None
-           ) -> torch.Tensor:
+def priors(params, w: Weights, pose_w: torch.Tensor, pose_mean: torch.Tensor | None = None,
+           up: torch.Tensor | None = None) -> torch.Tensor:
     """Pose, shape, face and hand priors of :class:`~signsplat.fit.bodyfit.FitParams`, per frame.
 
     ``pose_mean (63,)``: the body-pose prior mean (default zeros, the T-pose).
@@ -161,7 +163,7 @@ def priors(params, w: Weights, pose_w: torch.Tensor, pose_mean: torch.Tensor | N
     dev = params.body_pose if pose_mean is None else params.body_pose - pose_mean
     loss = (pose_w * dev ** 2).sum() / T
     if w.upright > 0:
-        loss = loss + w.upright * upright(params.global_orient) / T
+        loss = loss + w.upright * upright(params.global_orient, up) / T
     loss = loss + w.shape * (params.betas ** 2).sum()
     loss = loss + w.expression * (params.expression ** 2).sum() / T
     loss = loss + w.jaw * (params.jaw_pose ** 2).sum() / T

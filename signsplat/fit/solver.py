@@ -68,11 +68,12 @@ class Problem:
     contiguous: torch.Tensor | None = None
     anchor: dict[str, torch.Tensor] = field(default_factory=dict)
     pose_mean: torch.Tensor | None = None  # (63,) body-pose prior mean
+    up: torch.Tensor | None = None  # (3,) world vertical in the fit frame (upright prior)
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
-                 dtype=torch.float32, device="cpu") -> Problem:
+                 dtype=torch.float32, device="cpu", up: np.ndarray | None = None) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -93,7 +94,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"], contiguous=contig,
         anchor={k: torch.as_tensor(v, dtype=dtype, device=device)
                 for k, v in (anchor or {}).items()},
-        pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device))
+        pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device),
+        up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -122,7 +124,7 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     terms = {"data": w.reprojection * data, "behind": w.behind_camera * behind}
     pose_w = obj.body_pose_weights(w, dtype=dt, device=dev)
     sub = _SubParams(params, sel)
-    terms["prior"] = obj.priors(sub, w, pose_w, problem.pose_mean)
+    terms["prior"] = obj.priors(sub, w, pose_w, problem.pose_mean, problem.up)
     if stage.smooth:
         contig = None if problem.contiguous is None else _contig(problem.contiguous, sel,
                                                                  kp3d.shape[0])

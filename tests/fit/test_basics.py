@@ -189,3 +189,15 @@ def test_mpjpe_pa_and_jitter():
     jitter = gt.copy()
     jitter[5] += 0.01
     assert E.acceleration_error_mm(jitter, gt) > 1.0
+
+
+def test_rig_up_direction_of_level_cameras():
+    import roma
+    rig = _ring(4, 120)
+    up = C.rig_up_direction(rig.R)
+    assert np.allclose(up, [0, 1, 0], atol=1e-6)
+    # the same rig in a tilted world frame: the vertical turns with it
+    Rw = roma.rotvec_to_rotmat(torch.tensor([0.1, 0.2, -0.05], dtype=torch.float64)).numpy()
+    up2 = C.rig_up_direction(rig.R @ Rw.T)
+    assert np.allclose(up2, Rw @ np.array([0, 1, 0]), atol=1e-6)
+    assert C.rig_up_direction(rig.R[:1]) is None  # one camera: undefined
