@@ -12,6 +12,10 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/assets.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/ingest.smk"
+include: "workflow/rules/perception.smk"
+include: "workflow/rules/fit.smk"
+include: "workflow/rules/colmap.smk"
+include: "workflow/rules/avatar.smk"
 
 
 rule all:
