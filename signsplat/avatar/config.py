@@ -23,7 +23,8 @@ PROFILES: dict[str, dict[str, Any]] = {
         "upsample": {"edge_length": 0.012, "face_area": 6.0e-5},
         "train": {"iterations": 6000, "accumulate_poses": 4},
         "model": {"sh_degree": 1, "hidden": 48},
-        "strategy": {"refine_stop": 4500, "max_points": 90000},
+        "strategy": {"refine_start": 300, "refine_every": 100, "refine_stop": 4500,
+                     "max_points": 90000},
         "sh_schedule": {"rise_at": 0.8},
     },
 }
@@ -67,9 +68,9 @@ class ShSchedule:
 class StrategyConfig:
     enabled: bool = True  # densification + pruning (paper Table 5 "Dens.")
     grad_threshold: float = 0.0002
-    refine_start: int = 200
-    refine_stop: int = 1200
-    refine_every: int = 100
+    refine_start: int = 100
+    refine_stop: int = 550
+    refine_every: int = 50
     reset_every: int = 0  # 0 = never reset the gradient statistics except after refining
     max_points: int = 40000
     max_new_per_refine: int = 3000
@@ -105,7 +106,7 @@ class LossConfig:
 
 @dataclass
 class TrainConfig:
-    iterations: int = 1500
+    iterations: int = 700
     accumulate_poses: int = 3  # poses whose losses are summed before a step (Table 5 "Acc.")
     accumulate: bool = True  # off = one pose per optimiser step
     lr_means: float = 1.0e-3  # learnable barycentric logits / normal offsets
@@ -133,7 +134,7 @@ class TrainConfig:
 
 @dataclass
 class EvalConfig:
-    refine_steps: int = 30  # test-time pose refinement iterations per held-out frame
+    refine_steps: int = 20  # test-time pose refinement iterations per held-out frame
     refine_lr: float = 2.0e-3
     crop_size: PartValues = field(default_factory=lambda: PartValues(0.0, 0.2, 0.15))
     far_view_degrees: float = 25.0
