@@ -57,7 +57,6 @@ def _setup(args):
 
 
 def train_avatar(argv: list[str]) -> int:
-    from signsplat.avatar.ply import write_gaussian_ply
     from signsplat.avatar.train import AvatarTrainer
     from signsplat.io.tables import write_table
 

@@ -313,7 +313,8 @@ class AvatarModel(nn.Module):
             opacity_raw = opacity_raw + d_o[..., 0]
             sh = torch.cat([sh[:, :, :1] + d_c[:, :, None], sh[:, :, 1:]], 2)
         smin = self.cfg.scale_min
-        scales = smin + (self.scale_max_per_point()[None, :, None] - smin) * torch.sigmoid(scale_raw)
+        smax = self.scale_max_per_point()[None, :, None]
+        scales = smin + (smax - smin) * torch.sigmoid(scale_raw)
         q_c = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         quats = quat_mul(q_p, q_c)
         return PosedGaussians(

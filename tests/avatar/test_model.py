@@ -5,7 +5,7 @@ import math
 import roma
 import torch
 
-from conftest import SIZES, TinyBody, random_smplx, rig
+from conftest import SIZES, random_smplx, rig
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.model import sh_degree_at, wxyz_to_xyzw
 from signsplat.avatar.train import build_model

@@ -63,4 +63,5 @@ def test_switch_off_gives_no_terms_and_builds_nothing(tiny_body):
     terms = Regularizer(cfg_on.regularize)(model_on, g)
     assert {"reg_scale", "reg_rotation", "reg_opacity", "reg_color"} <= set(terms)
     assert float(terms["reg_color"].detach()) > 0
-    assert float(displacement_terms(model_on, g, cfg_on.regularize)["reg_displacement"].detach()) > 0
+    disp = displacement_terms(model_on, g, cfg_on.regularize)["reg_displacement"]
+    assert float(disp.detach()) > 0

@@ -9,7 +9,6 @@ import torch
 
 from conftest import TinyBody, make_scene, random_smplx, rig
 from signsplat.avatar import regularize as reg_mod
-from signsplat.avatar import train as train_mod
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.data import load_scene
 from signsplat.avatar.evaluate import evaluate_checkpoint

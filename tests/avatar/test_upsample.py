@@ -22,7 +22,8 @@ def test_no_threshold_crossed_keeps_only_vertices():
 def test_edge_and_face_points_counts_and_positions():
     v, f = _mesh()
     vn, fn = v.numpy(), f.numpy()
-    edges = np.unique(np.sort(np.concatenate([fn[:, [0, 1]], fn[:, [1, 2]], fn[:, [2, 0]]]), 1), axis=0)
+    e = np.concatenate([fn[:, [0, 1]], fn[:, [1, 2]], fn[:, [2, 0]]])
+    edges = np.unique(np.sort(e, 1), axis=0)
     lengths = np.linalg.norm(vn[edges[:, 0]] - vn[edges[:, 1]], axis=1)
     thr = float(np.median(lengths)) * 0.45  # every edge gets 1-2 points
     tri = vn[fn]
