@@ -1,0 +1,331 @@
+"""Rendering a stitched track with an avatar: cameras, streaming into the video, the CLI.
+
+The avatar is tiny and untrained (an icosphere 'body' file with the SMPL-X joint layout, one
+Gaussian per vertex, random colours) and images are 32 px, so the module runs in seconds.
+The helpers here are shared with test_baseline2d.py and test_stitch_eval.py.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tracemalloc
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from signsplat.avatar.config import avatar_config
+from signsplat.avatar.data import SceneData
+from signsplat.avatar.train import AvatarTrainer, build_model
+from signsplat.body import joints as J
+from signsplat.body.model import BodyModel
+from signsplat.body.model_file import write_model_file
+from signsplat.io.tables import write_table
+from signsplat.io.video import VideoWriter, iter_frames
+from signsplat.stitch.motion import StitchConfig, stitch_clips, stitch_frames
+from signsplat.stitch.render import (AvatarRenderer, Camera, Identity, batch_params,
+                                     choose_camera, front_camera, load_cameras, look_at,
+                                     render_track)
+
+SIZE = 32
+AVATAR_CFG = {
+    "upsample": {"max_rounds": 0},
+    "model": {"hidden": 8, "sh_degree": 0,
+              "scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}},
+    "train": {"iterations": 1, "accumulate_poses": 1, "threads": 1, "log_every": 1,
+              "smplx_source": "ground_truth", "test_interval": 100, "test_offset": 99},
+}
+KP_NAMES = ("nose", "leye", "reye", "lear", "rear", "LBigToe", "LSmallToe", "LHeel", "RBigToe",
+            "RSmallToe", "RHeel") + tuple(f"{s}{f}" for s in "lr"
+                                          for f in ("thumb", "index", "middle", "ring", "pinky"))
+FAST = StitchConfig(min_transition=3, max_transition=6, hold_start=1, hold_end=1)
+
+
+def tiny_body_arrays(seed: int = 0) -> dict[str, np.ndarray]:
+    """An SMPL-X-layout body: icosphere (162 vertices, radius 0.3 m, centre y = 1) with 55
+    joints inside, LBS weights by distance, shape directions (no expression directions)."""
+    import trimesh
+
+    g = np.random.default_rng(seed)
+    sph = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    v = np.asarray(sph.vertices) + [0.0, 1.0, 0.0]
+    n = len(v)
+    joints = g.normal(0, 0.12, (55, 3)) + [0.0, 1.0, 0.0]
+    joints[list(J.LEFT_HAND_JOINTS), 0] = 0.25
+    joints[list(J.RIGHT_HAND_JOINTS), 0] = -0.25
+    d = np.linalg.norm(v[None] - joints[:, None], axis=-1)  # (55, V)
+    reg = np.exp(-d / 0.03)
+    reg /= reg.sum(1, keepdims=True)
+    w = np.exp(-d.T / 0.05)
+    w /= w.sum(1, keepdims=True)
+    part = np.full(n, J.PART_BODY)
+    part[v[:, 1] > 1.2] = J.PART_HEAD
+    part[v[:, 0] > 0.18] = J.PART_LEFT_HAND
+    part[v[:, 0] < -0.18] = J.PART_RIGHT_HAND
+    shapedirs = np.zeros((n, 3, 20))
+    shapedirs[..., :10] = g.normal(0, 0.002, (n, 3, 10))
+    return {
+        "v_template": v, "f": np.asarray(sph.faces), "shapedirs": shapedirs,
+        "posedirs": np.zeros((n, 3, 486)), "J_regressor": reg, "weights": w,
+        "kintree_table": np.stack([np.array(J.SMPLX_PARENTS), np.arange(55)]),
+        "hands_componentsl": np.eye(45), "hands_componentsr": np.eye(45),
+        "hands_meanl": np.zeros(45), "hands_meanr": np.zeros(45),
+        "lmk_faces_idx": np.arange(51) % len(sph.faces), "lmk_bary_coords": np.full((51, 3), 1 / 3),
+        "part_labels": part, "num_shape_dirs": np.array(10), "num_expression_dirs": np.array(10),
+        "kp_vertex_names": np.array(KP_NAMES), "kp_vertex_ids": g.integers(0, n, len(KP_NAMES)),
+    }
+
+
+def rig_cameras(n: int = 3, size: int = SIZE, distance: float = 1.6) -> list[Camera]:
+    """Cameras on an arc in front of the body (+z), looking at (0, 1, 0)."""
+    cams = []
+    for i, a in enumerate(np.linspace(-0.6, 0.6, n)):
+        eye = np.array([distance * math.sin(a), 1.0, distance * math.cos(a)])
+        f = size * 1.2
+        K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1]])
+        cams.append(Camera(look_at(eye, [0.0, 1.0, 0.0]), K, size, size, f"view{i}"))
+    return cams
+
+
+def write_cameras(path, cams: list[Camera]):
+    rows = [dict(scene="tiny", view=i, frame=-1, width=c.width, height=c.height,
+                 fx=c.K[0, 0], fy=c.K[1, 1], cx=c.K[0, 2], cy=c.K[1, 2],
+                 R=c.viewmat[:3, :3].reshape(-1).tolist(), t=c.viewmat[:3, 3].tolist())
+            for i, c in enumerate(cams)]
+    df = pd.DataFrame(rows).astype({"view": "int32", "frame": "int32", "width": "int32",
+                                    "height": "int32"})
+    return write_table(df, path, "cameras")
+
+
+@pytest.fixture(scope="session")
+def tiny_files(tmp_path_factory):
+    """(body .npz, cameras table, avatar checkpoint after one training step)."""
+    root = tmp_path_factory.mktemp("tiny_avatar")
+    body_path = write_model_file(root / "body.npz", tiny_body_arrays())
+    body = BodyModel.from_file(body_path)
+    cams = rig_cameras()
+    cam_path = write_cameras(root / "cameras.parquet", cams)
+    g = torch.Generator().manual_seed(0)
+    smplx = {k: torch.zeros(3, n) for k, n in J.PARAM_BLOCKS}
+    smplx["body_pose"] = torch.randn(3, 63, generator=g) * 0.1
+    smplx["transl"][:, 2] = 0.05
+    images = (torch.rand(len(cams), 3, SIZE, SIZE, 3, generator=g) * 255).to(torch.uint8)
+    data = SceneData("tiny", np.arange(3), np.arange(len(cams)), images,
+                     torch.full((len(cams), 3, SIZE, SIZE), 255, dtype=torch.uint8),
+                     torch.tensor(np.stack([c.viewmat for c in cams]), dtype=torch.float32),
+                     torch.stack([c.raster_K() for c in cams]), smplx)
+    trainer = AvatarTrainer(body, data, avatar_config(AVATAR_CFG))
+    with torch.no_grad():
+        trainer.model.sh_dc.normal_(0, 1.5, generator=g)
+    trainer.run(progress=False)
+    ckpt = trainer.save_checkpoint(root / "checkpoint.pt")
+    return body_path, cam_path, ckpt
+
+
+@pytest.fixture(scope="session")
+def tiny_body(tiny_files):
+    return BodyModel.from_file(tiny_files[0])
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def tiny_renderer(body, camera=None, placement="avatar", ckpt=None) -> AvatarRenderer:
+    if ckpt is not None:
+        return AvatarRenderer.from_checkpoint(ckpt, body, camera or rig_cameras()[1],
+                                              placement=placement, backend="cpu")
+    model = build_model(body, torch.zeros(1, 10), avatar_config(AVATAR_CFG))
+    with torch.no_grad():
+        model.sh_dc.normal_(0, 1.5, generator=torch.Generator().manual_seed(1))
+    return AvatarRenderer(model, body, Identity(np.zeros(10, np.float32)),
+                          camera or rig_cameras()[1], 0, backend="cpu")
+
+
+class CountingWriter:
+    """VideoWriter stand-in: checks and counts frames, keeps a checksum, holds nothing."""
+
+    def __init__(self):
+        self.frames = 0
+        self.checksum = 0
+        self.distinct = set()
+
+    def write(self, frame):
+        assert frame.dtype == np.uint8 and frame.shape == (SIZE, SIZE, 3)
+        self.frames += 1
+        self.distinct.add(hash(frame.tobytes()))
+
+
+# ------------------------------------------------------------------------------ cameras
+def test_camera_projection_and_resize():
+    cam = rig_cameras(3)[1]
+    centre_px = cam.project(np.array([0.0, 1.0, 0.0]))[0]
+    np.testing.assert_allclose(centre_px, [(SIZE - 1) / 2] * 2, atol=1e-9)
+    big = cam.resized(4 * SIZE, 2 * SIZE)
+    p = np.array([[0.1, 1.2, 0.05], [-0.2, 0.8, 0.1]])
+    uv, z = cam.project(p)
+    uv2, z2 = big.project(p)
+    # pixel centres at integers: x' = (x + 0.5) * s - 0.5
+    np.testing.assert_allclose(uv2[:, 0], (uv[:, 0] + 0.5) * 4 - 0.5, atol=1e-9)
+    np.testing.assert_allclose(uv2[:, 1], (uv[:, 1] + 0.5) * 2 - 0.5, atol=1e-9)
+    np.testing.assert_allclose(z, z2)
+    assert float(cam.raster_K()[0, 2]) == pytest.approx(cam.K[0, 2] + 0.5)
+
+
+def test_front_camera_and_choice(tmp_path):
+    cams = rig_cameras(4, distance=2.0)
+    path = write_cameras(tmp_path / "cameras.parquet", cams)
+    loaded = load_cameras(path)
+    assert len(loaded) == 4
+    np.testing.assert_allclose(loaded[2].viewmat, cams[2].viewmat, atol=1e-12)
+    front = front_camera(loaded)
+    # straight in front (+z) at the rig's distance from the point the rig looks at
+    np.testing.assert_allclose(front.centre, [0.0, 1.0, 2.0], atol=1e-6)
+    assert front.project(np.array([0.0, 1.0, 0.0]))[0] == pytest.approx([(SIZE - 1) / 2] * 2)
+    assert choose_camera("2", 0, path).name == "view2"
+    assert choose_camera("front", 64, path).width == 64
+    with pytest.raises(Exception, match="no camera 9"):
+        choose_camera("9", 0, path)
+    with pytest.raises(Exception, match="needs a cameras table"):
+        choose_camera("1", 64, None)
+    framing = choose_camera("front", 48, None, np.array([[-0.2, 0.8, 0.0], [0.2, 1.4, 0.1]]))
+    uv, z = framing.project(np.array([[-0.2, 0.8, 0.0], [0.2, 1.4, 0.0]]))
+    assert (z > 0).all() and (uv >= 0).all() and (uv <= 47).all()
+
+
+# ------------------------------------------------------------------------------ rendering
+def test_batch_params_substitute_identity(gloss_library):
+    frames = list(stitch_frames([gloss_library["HELLO"]], FAST))[:5]
+    ident = Identity(np.full(10, 0.5, np.float32), np.array([0, 0.1, 0], np.float32),
+                     np.array([0, 0, 0.2], np.float32))
+    p = batch_params(frames, ident)
+    assert p["body_pose"].shape == (5, 63) and p["betas"].shape == (5, 10)
+    assert torch.all(p["betas"] == 0.5)
+    np.testing.assert_allclose(p["transl"].numpy(), np.tile([0, 0, 0.2], (5, 1)), atol=1e-7)
+    np.testing.assert_array_equal(p["right_hand_pose"][3].numpy(),
+                                  frames[3].params["right_hand_pose"])
+    kept = batch_params(frames, Identity(np.zeros(10, np.float32)))
+    np.testing.assert_array_equal(kept["transl"].numpy(),
+                                  np.stack([f.params["transl"] for f in frames]))
+
+
+def test_renderer_matches_direct_rasterization(tiny_body, gloss_library):
+    from signsplat.render import rasterization
+
+    r = tiny_renderer(tiny_body)
+    frames = list(stitch_frames([gloss_library["BOOK"]], FAST))[3:5]
+    images, out = r.render(frames)
+    assert images.shape == (2, SIZE, SIZE, 3) and images.dtype == np.uint8
+    p = batch_params(frames, r.identity)
+    with torch.no_grad():
+        o = tiny_body(**p)
+        g = r.model(o.v_shaped, o.vertices, o.transforms, p["transl"], 0)
+        cam = r.camera
+        col, _, _ = rasterization(g.means[1], g.quats[1], g.scales[1], g.opacities[1],
+                                  g.colors[1], torch.tensor(cam.viewmat, dtype=torch.float32)[None],
+                                  cam.raster_K()[None], SIZE, SIZE, sh_degree=0,
+                                  backgrounds=torch.ones(1, 3), backend="reference")
+    ref = (col[0].clamp(0, 1) * 255).numpy()
+    assert np.abs(images[1].astype(float) - ref).max() <= 1.5
+    assert (images[1] < 250).any(axis=-1).sum() > 20  # the avatar covers pixels
+    torch.testing.assert_close(out.joints, o.joints)
+
+
+def test_render_track_streams_every_frame_into_mp4(tmp_path, tiny_files, tiny_body,
+                                                   gloss_library):
+    r = tiny_renderer(tiny_body, ckpt=tiny_files[2])
+    assert r.scene == "tiny"
+    clips = [gloss_library[g] for g in ("HELLO", "BOOK", "WHERE")]
+    n = len(stitch_clips(clips, FAST)["label"])
+    seen = []
+    with VideoWriter(tmp_path / "s.mp4", fps=25) as w:
+        stats = render_track(stitch_frames(clips, FAST), r, w, batch=5,
+                             on_batch=lambda fr, out: seen.append(len(fr)))
+    assert stats.frames == n and sum(seen) == n and max(seen) <= 5
+    assert stats.render_fps > 0 and stats.cpu_ms_per_frame > 0
+    decoded = [img for _, img in iter_frames(tmp_path / "s.mp4")]
+    assert len(decoded) == n and decoded[0].shape == (SIZE, SIZE, 3)
+    # the avatar moves: first and middle frames differ clearly
+    assert np.abs(decoded[0].astype(int) - decoded[n // 2].astype(int)).mean() > 0.5
+
+
+def test_long_sentence_memory_stays_flat(tiny_body, gloss_library):
+    """Frames are written as rendered: the peak of Python allocations does not grow with the
+    number of frames."""
+    r = tiny_renderer(tiny_body)
+    signs = [g for g, c in gloss_library.items() if c.kind == "sign"]
+
+    def peak(n_glosses):
+        clips = [gloss_library[signs[i % len(signs)]] for i in range(n_glosses)]
+        w = CountingWriter()
+        tracemalloc.start()
+        render_track(stitch_frames(clips, FAST), r, w, batch=4)
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        return w.frames, top
+
+    render_track(stitch_frames([gloss_library["HELLO"]], FAST), r, CountingWriter())  # warm
+    n_short, short = peak(1)
+    n_long, long = peak(6)
+    assert n_long > 4 * n_short
+    assert long < 1.5 * short + 2e6, (short, long)
+
+
+# ------------------------------------------------------------------------------ CLI
+def _sign(tmp_path, tiny_files, gloss_library, sentences, *extra, ids=None):
+    from signsplat.cli import main
+    from signsplat.stitch.library import write_library
+
+    lib = tmp_path / "glosses.parquet"
+    if not lib.exists():
+        write_library(gloss_library.values(), lib)
+    body, cams, ckpt = tiny_files
+    cfg = {"min_transition": 3, "max_transition": 5, "size": SIZE, "camera": "front",
+           "render_batch": 4}
+    argv = ["sign", *sentences, "--library", str(lib), "--out", str(tmp_path / "out"),
+            "--avatar", str(ckpt), "--body", str(body), "--cameras", str(cams),
+            "--config-json", json.dumps(cfg), "--threads", "1", *extra]
+    for i in ids or []:
+        argv += ["--id", i]
+    return main(argv)
+
+
+def test_sign_command_renders_videos_and_eval(tmp_path, tiny_files, gloss_library, capsys):
+    from signsplat.io.tables import read_table
+
+    rc = _sign(tmp_path, tiny_files, gloss_library, ["Where is the book?", "Qwx!"],
+               ids=["book", "qwx"])
+    assert rc == 0, capsys.readouterr().err
+    out = tmp_path / "out"
+    for name in ("book", "qwx"):
+        track = read_table(out / f"{name}.smplx.parquet", "smplx_params")
+        video = [img for _, img in iter_frames(out / f"{name}.mp4")]
+        base = [img for _, img in iter_frames(out / f"{name}.baseline2d.mp4")]
+        assert len(video) == len(base) == len(track) > 0
+        assert video[0].shape == (SIZE, SIZE, 3)
+    # unknown words are fingerspelled, not dropped
+    plan = json.loads((out / "qwx.plan.json").read_text())
+    assert plan["glosses"] == ["Q", "W", "X"]
+    ev = read_table(out / "stitch_eval.parquet", "stitch_eval")
+    assert set(ev.sentence) == {"book", "qwx"} and (ev.scene == "tiny").all()
+    fps = ev[(ev.metric == "render_fps")]
+    assert len(fps) == 2 and (fps.value > 0).all()
+    joins = ev[(ev.sentence == "qwx") & (ev.metric == "transition_frames")]
+    assert list(joins["join"]) == [0, 1] and joins.value.between(3, 5).all()
+    assert "frames/s" in capsys.readouterr().out
+
+
+def test_sign_command_empty_sentence_is_a_clear_error(tmp_path, tiny_files, gloss_library,
+                                                      capsys):
+    rc = _sign(tmp_path, tiny_files, gloss_library, ["  ...  "], ids=["empty"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "nothing to render" in err and "coverage" in err
+    out = tmp_path / "out"
+    assert (out / "empty.plan.txt").exists() and not (out / "empty.mp4").exists()
