@@ -110,6 +110,8 @@ def test_multiview_hard_cases_stay_finite(kpm):
     assert stats.nan == 1 and stats.low_score > 0
     assert np.isfinite(obs).all()
     cfg = _cfg({**FAST_MV, "min_keypoints": 10})
+    for st in cfg["multiview"]["stages"]:  # only finiteness and bookkeeping are checked here
+        st["iterations"] = min(st["iterations"], 20)
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
     assert res.camera_status[2] == "no_detections"
     assert res.provenance.tolist() == ["fitted", "fitted", "interpolated", "fitted", "fitted"]
