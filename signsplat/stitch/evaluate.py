@@ -198,8 +198,8 @@ def sentence_eval(scene: str, sentence: str, track: dict, fps: float,
     df.insert(0, "scene", scene)
     df["join"] = df["join"].astype("int64")
     df["value"] = df["value"].astype("float64")
-    df["from_gloss"] = df["from_gloss"].fillna("").astype(str)
-    df["to_gloss"] = df["to_gloss"].fillna("").astype(str)
+    for col in ("from_gloss", "to_gloss"):
+        df[col] = df[col].astype(object).where(df[col].notna(), "").astype(str)
     df["text"] = text
     return df
 

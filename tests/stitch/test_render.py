@@ -101,7 +101,8 @@ def write_cameras(path, cams: list[Camera]):
 
 @pytest.fixture(scope="session")
 def tiny_files(tmp_path_factory):
-    """(body .npz, cameras table, avatar checkpoint after one training step)."""
+    """(body .npz, cameras table, checkpoint of an untrained avatar with random colours, as
+    ``signsplat train-avatar`` writes it)."""
     root = tmp_path_factory.mktemp("tiny_avatar")
     body_path = write_model_file(root / "body.npz", tiny_body_arrays())
     body = BodyModel.from_file(body_path)
@@ -119,7 +120,6 @@ def tiny_files(tmp_path_factory):
     trainer = AvatarTrainer(body, data, avatar_config(AVATAR_CFG))
     with torch.no_grad():
         trainer.model.sh_dc.normal_(0, 1.5, generator=g)
-    trainer.run(progress=False)
     ckpt = trainer.save_checkpoint(root / "checkpoint.pt")
     return body_path, cam_path, ckpt
 
