@@ -23,6 +23,11 @@ from signsplat.errors import InputError
 from signsplat.io.atomic import write_bytes_atomic
 
 
+def sentence_id(sentence: str) -> str:
+    """Output file stem of a sentence: its first six words and a hash of the whole text."""
+    return _slug(sentence)
+
+
 def _slug(sentence: str) -> str:
     words = re.findall(r"[a-z0-9]+", sentence.lower())[:6]
     digest = hashlib.sha1(sentence.encode()).hexdigest()[:8]
