@@ -7,6 +7,7 @@ backends (``meta["means2d"]`` [C, N, 2], ``meta["radii"]`` [C, N, 2]).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 from typing import Any
@@ -14,6 +15,7 @@ from typing import Any
 from torch import Tensor
 
 
+@functools.lru_cache(maxsize=1)
 def available() -> bool:
     """True when gsplat can be imported (the CUDA check is done on the tensors' device)."""
     return importlib.util.find_spec("gsplat") is not None

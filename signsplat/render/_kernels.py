@@ -1006,9 +1006,15 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     term = valid & (nt <= tthr)
                     contrib = valid & (nt > tthr)
                     w = al * t if contrib else T(0.0)
-                    # finished pixels keep -T (so t > 0 fails): no extra field, no branch
-                    buf[_O_T + p] = nt if contrib else (-t if term else t)
-                    buf[_O_LAST + p] = jr if contrib else buf[_O_LAST + p]
+                    # finished pixels keep -T (so t > 0 fails): no extra field, no branch.
+                    # Blends are written as exact arithmetic, not as selects: LLVM turns
+                    # "store (c ? x : old)" into a masked store, which the next Gaussian's
+                    # loads of the same pixels cannot forward from.
+                    cf = T(1.0) if contrib else T(0.0)
+                    tf = T(1.0) if term else T(0.0)
+                    buf[_O_T + p] = t * (T(1.0) - cf * al) * (T(1.0) - T(2.0) * tf)
+                    lst = buf[_O_LAST + p]
+                    buf[_O_LAST + p] = lst + cf * (jr - lst)
                     buf[_O_W + p] = w
                     buf[_O_ACC0 + p] += w * c0
                     buf[_O_ACC1 + p] += w * c1
@@ -1181,7 +1187,8 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     gd = vc0 * c0 + vc1 * c1 + vc2 * c2 + vc3 * c3 + buf[_OB_GD + p]
                     q = buf[_OB_Q + p]
                     v_al = ti * gd - q * ra
-                    buf[_OB_T + p] = ti if valid else t
+                    vf = T(1.0) if valid else T(0.0)
+                    buf[_OB_T + p] = vf * ti + (T(1.0) - vf) * t  # exact blend, see raster_fwd
                     buf[_OB_Q + p] = q + w * gd
                     buf[_OB_W + p] = w
                     v0 += w * vc0
