@@ -74,6 +74,9 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
         if not m.any():
             status.append("no_detections")
             continue
+        if cfg.get("camera_init", "pnp") == "rig_prior":
+            status.append("prior")
+            continue
         sol = None
         if m.sum() >= cfg["pnp_min_points"]:
             sol = pnp(kp_neutral[idx][m], med[idx][m][:, :2], K[v])
@@ -107,7 +110,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     kp0 = neutral_keypoints(kpm, dtype, device)
     rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
     views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
-    solved = [v for v in range(V) if status[v] == "pnp"]
+    ok = ("pnp", "prior") if mv.get("camera_init") == "rig_prior" else ("pnp",)
+    solved = [v for v in range(V) if status[v] in ok]
     if not solved:
         raise ValueError("no camera could be initialised: too few head/torso keypoints in "
                          "every view's first frames")
@@ -121,7 +125,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
                        device=device, init={"body_pose": rest_body_pose(cfg, T)})
-    solved_R = rig0.R[[v for v in range(V) if status[v] == "pnp"]]
+    solved_R = rig0.R[solved]
     up = rig_up_direction(solved_R) if mv["level_cameras"] else None
     log.info("world vertical for the upright prior: %s",
              "body frame +y" if up is None else np.round(up, 4).tolist())

@@ -224,3 +224,18 @@ def test_cli_bad_input_names_the_file(tmp_path, body_path, capsys):
                  str(tmp_path / "o")])
     assert code == 2
     assert "cams.parquet" in capsys.readouterr().err
+
+
+def test_rig_prior_camera_init(kpm):
+    """camera_init rig_prior: every view with detections starts from the config's arc."""
+    from signsplat.fit.multiview import initial_rig, neutral_keypoints
+
+    gt = random_motion(2, seed=6)
+    rig = synthetic_rig(3, arc=150)
+    obs = observe(kpm, gt, rig)
+    obs[1] = 0.0
+    cfg = _cfg({"multiview": {"camera_init": "rig_prior"}})["multiview"]
+    rig0, status, _ = initial_rig(neutral_keypoints(kpm), obs, rig.K, rig.width, rig.height, cfg)
+    assert status == ["prior", "no_detections", "prior"]
+    # the prior is the scene's own arc layout around the body: close to the true rig
+    assert E.camera_errors(rig0, rig)["rotation_deg_max"] < 10.0
