@@ -83,7 +83,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarr
     eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
     z = target - eye
     z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, np.float64))
+    x = np.cross(z, np.asarray(up, np.float64))  # x = y cross z with y = -up
     if np.linalg.norm(x) < 1e-9:
         raise ValueError("camera looks along the up direction")
     x /= np.linalg.norm(x)

@@ -188,6 +188,10 @@ def test_front_camera_and_choice(tmp_path):
     # straight in front (+z) at the rig's distance from the point the rig looks at
     np.testing.assert_allclose(front.centre, [0.0, 1.0, 2.0], atol=1e-6)
     assert front.project(np.array([0.0, 1.0, 0.0]))[0] == pytest.approx([(SIZE - 1) / 2] * 2)
+    # upright image: world up is image up, the signer's left (+x) on the image right
+    uv = front.project(np.array([[0.0, 1.5, 0.0], [0.0, 0.5, 0.0], [0.3, 1.0, 0.0]]))[0]
+    assert uv[0, 1] < uv[1, 1] and uv[2, 0] > (SIZE - 1) / 2
+    assert np.linalg.det(front.viewmat[:3, :3]) == pytest.approx(1.0)
     assert choose_camera("2", 0, path).name == "view2"
     assert choose_camera("front", 64, path).width == 64
     with pytest.raises(Exception, match="no camera 9"):
