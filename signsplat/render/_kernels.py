@@ -920,14 +920,15 @@ def _level(op, ca, cb, cc, T):
 @kernel
 def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               out_color, out_T, out_last, pair_counts):
+               out_color, out_T, out_last, pair_counts, isect_rows):
     """Front-to-back compositing, tile by tile.
 
     Inputs are flat over (camera, Gaussian): means2d [C*N, 2], conics [C*N, 3], opacities
     [C*N], colors [C*N or N, D]. Outputs: out_color [C, H, W, D] (background included),
     out_T [C, H, W] final transmittance, out_last [C, H, W] index (into flat_ids) of the last
-    Gaussian composited (-1: none), pair_counts[tile] = (pixel, Gaussian) pairs evaluated.
-    Finished pixels carry -T, so they drop out of the ``valid`` mask without a branch.
+    Gaussian composited (-1: none), pair_counts[tile] = (pixel, Gaussian) pairs evaluated,
+    isect_rows[j] = (first, last + 1) tile row where the j-th entry of flat_ids was composited
+    (the backward visits only those rows). Finished pixels carry -T, so they drop out of the ``valid`` mask without a branch.
     """
     D = out_color.shape[3]
     DI = min(D, 4)
@@ -984,6 +985,8 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             c2 = colors[ci, 2] if DI > 2 else T(0.0)
             c3 = colors[ci, 3] if DI > 3 else T(0.0)
             jr = T(j - start)
+            rlo = TILE
+            rhi = 0
             for y in range(lo, hi):
                 if rowdone[y] >= TILE:
                     continue
@@ -993,6 +996,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     continue
                 npairs += lb - la
                 nterm = 0
+                ncontrib = 0
                 pb = np.uint64(y * TILE + la)
                 pe = np.uint64(y * TILE + lb)
                 for p in range(pb, pe):
@@ -1022,6 +1026,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     if DI > 3:
                         buf[_O_ACC3 + p] += w * c3
                     nterm += np.int64(term)
+                    ncontrib += np.int64(contrib)
                 for k in range(4, D):
                     ck = colors[ci, k]
                     ok = np.uint64((_F_ACC + k) * NP)
@@ -1029,6 +1034,11 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                         buf[ok + p] += buf[_O_W + p] * ck
                 rowdone[y] += nterm
                 ndone += nterm
+                if ncontrib > 0:
+                    rlo = min(rlo, y)
+                    rhi = y + 1
+            isect_rows[j, 0] = np.uint8(rlo)
+            isect_rows[j, 1] = np.uint8(rhi)
         pair_counts[tid] = npairs
         ymax = min(TILE, height - y0)
         xmax = min(TILE, width - x0)
@@ -1050,8 +1060,9 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
 @kernel_fastmath
 def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               final_T, last_ids, v_color, v_alpha, n_threads, gbuf):
-    """Back-to-front backward of :func:`raster_fwd`, tile by tile.
+               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf):
+    """Back-to-front backward of :func:`raster_fwd`, tile by tile, over the rows where the
+    forward composited each Gaussian (``isect_rows``; elsewhere its terms are zero).
 
     Per pixel it keeps the transmittance (recovered as T / (1 - alpha), as gsplat does) and
     Q = sum over the Gaussians behind of w_j <v_C, c_j> plus the background and alpha terms, so
@@ -1116,10 +1127,11 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             continue
         vcol = np.zeros(D, dtype=T)
         for j in range(jmax, start - 1, -1):
-            fi = flat_ids[j]
-            lo, hi = _row_range(float(means2d[fi, 1]), radii[fi, 1], y0, height)
+            lo = np.int64(isect_rows[j, 0])
+            hi = np.int64(isect_rows[j, 1])
             if lo >= hi:
                 continue
+            fi = flat_ids[j]
             mx = means2d[fi, 0]
             my = means2d[fi, 1]
             ca = conics[fi, 0]
