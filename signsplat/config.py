@@ -11,6 +11,7 @@ Schemas live in ``workflow/schemas``; a schema may ``$ref`` a sibling file by re
 from __future__ import annotations
 
 import copy
+import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -40,7 +41,9 @@ def _load_yaml(path: Path) -> Any:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
 
 
+@functools.lru_cache(maxsize=1)
 def _registry() -> Registry:
+    """All schema files, read once per process (validation runs many times at parse time)."""
     resources = []
     for file in SCHEMA_DIR.rglob("*.schema.yaml"):
         uri = file.relative_to(SCHEMA_DIR).as_posix()
