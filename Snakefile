@@ -16,6 +16,7 @@ include: "workflow/rules/perception.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/colmap.smk"
 include: "workflow/rules/avatar.smk"
+include: "workflow/rules/stitch.smk"
 
 
 rule all:
