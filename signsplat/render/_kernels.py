@@ -928,7 +928,8 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     out_T [C, H, W] final transmittance, out_last [C, H, W] index (into flat_ids) of the last
     Gaussian composited (-1: none), pair_counts[tile] = (pixel, Gaussian) pairs evaluated,
     isect_rows[j] = (first, last + 1) tile row where the j-th entry of flat_ids was composited
-    (the backward visits only those rows). Finished pixels carry -T, so they drop out of the ``valid`` mask without a branch.
+    (the backward visits only those rows). Finished pixels carry -T, so they drop out of the
+    ``valid`` mask without a branch.
     """
     D = out_color.shape[3]
     DI = min(D, 4)
