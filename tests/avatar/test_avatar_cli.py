@@ -16,7 +16,7 @@ from signsplat.body.model import BodyModel
 from signsplat.body.model_file import write_model_file
 from signsplat.io.tables import read_table
 from signsplat.render import rasterization
-from test_train import SIZE, _write_scene
+from test_avatar_train import SIZE, _write_scene
 
 CFG = {
     "upsample": {"edge_length": 0.08, "face_area": 3e-3},
