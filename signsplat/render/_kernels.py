@@ -920,7 +920,7 @@ def _level(op, ca, cb, cc, T):
 @kernel
 def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               out_color, out_T, out_last, pair_counts, isect_rows):
+               out_color, out_T, out_last, pair_counts, isect_rows, tile_order):
     """Front-to-back compositing, tile by tile.
 
     Inputs are flat over (camera, Gaussian): means2d [C*N, 2], conics [C*N, 3], opacities
@@ -939,8 +939,8 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     amax = T(MAX_ALPHA)
     tthr = T(TRANSMITTANCE_THRESHOLD)
     nf = _F_ACC + max(D, 4)
-    for tid_ in prange(C * n_tiles):
-        tid = np.int64(tid_)  # prange indices may be unsigned
+    for k_ in prange(C * n_tiles):
+        tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
         c = tid // n_tiles
         tt = tid - c * n_tiles
         ty = tt // tiles_x
@@ -1061,7 +1061,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
 @kernel_fastmath
 def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf):
+               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order):
     """Back-to-front backward of :func:`raster_fwd`, tile by tile, over the rows where the
     forward composited each Gaussian (``isect_rows``; elsewhere its terms are zero).
 
@@ -1079,8 +1079,8 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     thr = T(ALPHA_THRESHOLD)
     amax = T(MAX_ALPHA)
     nf = _B_VC + max(D, 4)
-    for tid_ in prange(C * n_tiles):
-        tid = np.int64(tid_)  # prange indices may be unsigned
+    for k_ in prange(C * n_tiles):
+        tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
         th = numba.get_thread_id()
         start = tile_offsets[tid]
         end = tile_offsets[tid + 1]
