@@ -152,7 +152,8 @@ def bin_gaussians(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, C:
         order = vis[np.lexsort((vis, d, cam))]
     nt = tiles_x * tiles_y
     counts = np.empty(C * nt, np.int64)
-    bands = max(1, min(tiles_y, math.ceil(2 * numba.get_num_threads() / max(C, 1))))
+    # bands of tile rows scanned in parallel (each band scans its camera's Gaussians once)
+    bands = max(1, min(tiles_y, math.ceil(numba.get_num_threads() / max(C, 1))))
     K.bin_count[np.float32](order, cam_start, rects, tiles_x, tiles_y, bands, counts)
     offsets = np.zeros(C * nt + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
