@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install bench-rasterizer clean-results
+.PHONY: demo test install chromium bench-rasterizer clean-results
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -24,7 +24,16 @@ demo: $(STAMP)
 	$(BIN)/snakemake --cores $(JOBS) --configfile config/config.yaml
 	@echo "Report: $(CURDIR)/reports/index.html"
 
-test: $(STAMP)
+# The report's browser test needs Debian's chromium; installed here when missing and possible.
+chromium:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing chromium for the report's browser test"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null \
+	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
+	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
+
+test: $(STAMP) chromium
 	$(BIN)/python -m pytest -q
 
 bench-rasterizer: $(STAMP)
