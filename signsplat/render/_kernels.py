@@ -918,9 +918,27 @@ def _level(op, ca, cb, cc, T):
 
 
 @kernel
+def raster_params(conics, opacities, radii, T, gparams):
+    """Per (camera, Gaussian): the row-test parameters of :func:`_level` (computed once, not
+    once per tile)."""
+    n = conics.shape[0]
+    for i_ in prange(n):
+        i = np.int64(i_)  # prange indices may be unsigned
+        if radii[i, 0] <= 0 and radii[i, 1] <= 0:
+            gparams[i, 0] = T(0.0)
+            gparams[i, 1] = T(0.0)
+            gparams[i, 2] = T(0.0)
+            continue
+        level, inv_ca, s_c = _level(opacities[i], conics[i, 0], conics[i, 1], conics[i, 2], T)
+        gparams[i, 0] = level
+        gparams[i, 1] = inv_ca
+        gparams[i, 2] = s_c
+
+
+@kernel
 def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               out_color, out_T, out_last, pair_counts, isect_rows, tile_order):
+               out_color, out_T, out_last, pair_counts, isect_rows, tile_order, gparams):
     """Front-to-back compositing, tile by tile.
 
     Inputs are flat over (camera, Gaussian): means2d [C*N, 2], conics [C*N, 3], opacities
@@ -979,7 +997,9 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             cb = conics[fi, 1]
             cc = conics[fi, 2]
             op = opacities[fi]
-            level, inv_ca, s_c = _level(op, ca, cb, cc, T)
+            level = gparams[fi, 0]
+            inv_ca = gparams[fi, 1]
+            s_c = gparams[fi, 2]
             ci = fi if colors_per_camera else fi % N
             c0 = colors[ci, 0]
             c1 = colors[ci, 1] if DI > 1 else T(0.0)
@@ -1061,7 +1081,8 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
 @kernel_fastmath
 def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order):
+               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order,
+               gparams):
     """Back-to-front backward of :func:`raster_fwd`, tile by tile, over the rows where the
     forward composited each Gaussian (``isect_rows``; elsewhere its terms are zero).
 
@@ -1139,7 +1160,9 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             cb = conics[fi, 1]
             cc = conics[fi, 2]
             op = opacities[fi]
-            level, inv_ca, s_c = _level(op, ca, cb, cc, T)
+            level = gparams[fi, 0]
+            inv_ca = gparams[fi, 1]
+            s_c = gparams[fi, 2]
             ci = fi if colors_per_camera else fi % N
             c0 = colors[ci, 0]
             c1 = colors[ci, 1] if DI > 1 else T(0.0)
