@@ -30,12 +30,13 @@ NAMES = ["b1", "b2", "b3", "b4"]
 def snakemake(cfg: Path, targets: list[str], jobs: int) -> float:
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "snakemake", "--cores", str(jobs), "--jobs", str(jobs),
-                    "--nolock", "--quiet", *targets, "--configfile", str(cfg)],
+                    "--nolock", *targets, "--configfile", str(cfg)],
                    cwd=ROOT, check=True, capture_output=True, text=True)
     return time.perf_counter() - t0
 
 
 def setup(work: Path, assets: Path | None) -> tuple[Path, Path]:
+    work.mkdir(parents=True, exist_ok=True)
     results = work / "results"
     if assets is not None:
         shutil.copytree(assets, results / "_assets")
