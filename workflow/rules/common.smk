@@ -1,5 +1,6 @@
 # Config validation and helpers shared by every rule. No science here.
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -8,6 +9,9 @@ from signsplat.config import load_sequences, validate
 validate(config, "config.schema.yaml", "config/config.yaml")
 
 PY = sys.executable
+# GNU OpenMP's default spin-wait makes torch's and Numba's thread pools fight over the cores
+# (2 threads ran 2-3x slower than 1 on a 2-core machine); short spins for every stage.
+os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 RESULTS = config["results"]
 # Every sequence of the run (sheet rows + config `scenes`): name -> row (see load_sequences).
 SEQUENCES = load_sequences(config)
