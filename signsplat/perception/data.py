@@ -137,8 +137,9 @@ def keypoint_sample(fs: FrameSet, i: int, out_hw: tuple[int, int], rng: np.rando
         if rng.random() < 0.35:
             if rng.random() < 0.5:  # hide a hand (the hard case in sign language)
                 hand = slice(91, 112) if rng.random() < 0.5 else slice(112, 133)
-                centre = np.nanmean(np.where(vis[hand, None], pts[hand], np.nan), 0)
-                if np.all(np.isfinite(centre)):
+                seen = vis[hand]
+                centre = pts[hand][seen].mean(0) if seen.any() else None
+                if centre is not None:
                     crop, ob = _occluder(crop, rng, centre + rng.normal(0, 3, 2),
                                          rng.uniform(0.12, 0.22) * h)
                 else:

@@ -24,25 +24,14 @@ import numpy as np
 import pandas as pd
 
 from signsplat.body.joints import KEYPOINT_PARTS, NUM_KEYPOINTS
-from signsplat.io.tables import Table, read_table, register_table, write_table
+from signsplat.io.tables import read_table, write_table
 from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
                                             load_segmenter)
 from signsplat.perception.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask, detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
+from signsplat.perception.tables import EVAL_TABLE, MASKS_TABLE  # noqa: F401  (registers)
 
-EVAL_TABLE = register_table(Table(
-    "perception_eval",
-    "Perception accuracy and speed of one scene against ground truth (one row per metric).",
-    {
-        "scene": "str sequence name",
-        "metric": "str mask_iou | pck@0.05 | mean_px_error | fps | stage_fps",
-        "part": "str all | body | feet | face | left_hand | right_hand | segment | keypoints "
-                "| total",
-        "value": "float64 the metric (IoU and PCK in [0, 1], error in pixels, frames/s)",
-        "count": "int64 frames or keypoints the value is computed over",
-    },
-))
 
 PCK_ALPHA = 0.05
 

@@ -169,7 +169,7 @@ def export_onnx(model: nn.Module, path, input_hw: tuple[int, int], output_names:
         torch.onnx.export(model, (torch.zeros(2, 3, *input_hw),), str(tmp),
                           input_names=["input"], output_names=output_names,
                           dynamic_shapes=({0: batch},), opset_version=opset, dynamo=True,
-                          optimize=True, verbose=False)
+                          optimize=True, verbose=False, external_data=False)
         ref = model(x)
         ref = ref if isinstance(ref, tuple) else (ref,)
         sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])

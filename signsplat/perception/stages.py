@@ -21,30 +21,14 @@ from tqdm import tqdm
 
 from signsplat.body.joints import NUM_KEYPOINTS
 from signsplat.errors import InputError
-from signsplat.io.tables import Table, read_table, register_table, write_table
+from signsplat.io.tables import read_table, write_table
 from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
                                             load_segmenter)
 from signsplat.perception.images import read_rgb, write_mask
 from signsplat.perception.keypoints import detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
+from signsplat.perception.tables import MASKS_TABLE  # noqa: F401  (registers 'masks')
 
-MASKS_TABLE = register_table(Table(
-    "masks",
-    "Predicted person masks: one row per view and frame (the PNG holds the mask itself).",
-    {
-        "scene": "str sequence name",
-        "view": "int32 camera index",
-        "frame": "int32 frame index",
-        "mask": "str path of the 0/255 mask PNG, relative to the table's folder",
-        "area": "int64 foreground pixels",
-        "x0": "float32 box left edge in pixels (first foreground column; NaN when empty)",
-        "y0": "float32 box top edge in pixels (first foreground row; NaN when empty)",
-        "x1": "float32 box right edge in pixels (one past the last column; NaN when empty)",
-        "y1": "float32 box bottom edge in pixels (one past the last row; NaN when empty)",
-        "confidence": "float32 mean alpha over the mask's pixels in [0, 1] (0 when empty)",
-    },
-    metadata={"model": "path of the segmentation ONNX file"},
-))
 
 
 @dataclass

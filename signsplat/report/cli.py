@@ -1,0 +1,76 @@
+"""``signsplat report``: the HTML report, and the ablation / sweep summaries.
+
+- ``signsplat report [html] --results results --out reports/index.html`` writes the report
+  (assets in ``reports/assets/``); stages that did not run get a section saying so.
+- ``signsplat report ablations --results R --scene S --variants-json '{"full": "abl_full"}'
+  --out R/S/ablations.parquet``
+- ``signsplat report sweep --results R --scene S --settings-json '{"sw_it150": {...}}'
+  --out R/S/sweep.parquet --plot R/S/sweep.png --demo demo``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from signsplat.config import REPO_ROOT
+
+
+def _html(argv: list[str]) -> int:
+    from signsplat.report.html import write_report
+
+    p = argparse.ArgumentParser(prog="signsplat report", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--results", default="results", help="results folder of a workflow run")
+    p.add_argument("--out", default="reports/index.html")
+    p.add_argument("--scenes-dir", default=str(REPO_ROOT / "config" / "scenes"),
+                   help="scene YAMLs (effects listed when sim/spec.json is absent)")
+    p.add_argument("--demo", default="demo", help="setting highlighted on the sweep plot")
+    p.add_argument("--title", default="SignSplat report")
+    a = p.parse_args(argv)
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title)
+    print(f"report: {Path(out).resolve()}")
+    return 0
+
+
+def _ablations(argv: list[str]) -> int:
+    from signsplat.report.runs import ablation_table, write_parquet
+
+    p = argparse.ArgumentParser(prog="signsplat report ablations")
+    p.add_argument("--results", required=True)
+    p.add_argument("--scene", required=True)
+    p.add_argument("--variants-json", required=True, help='{"label": "avatar variant", ...}')
+    p.add_argument("--out", required=True)
+    a = p.parse_args(argv)
+    df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
+    write_parquet(df, Path(a.out))
+    print(df.to_string(index=False))
+    return 0
+
+
+def _sweep(argv: list[str]) -> int:
+    from signsplat.report.plots import accuracy_vs_time
+    from signsplat.report.runs import sweep_table, write_parquet
+
+    p = argparse.ArgumentParser(prog="signsplat report sweep")
+    p.add_argument("--results", required=True)
+    p.add_argument("--scene", required=True)
+    p.add_argument("--settings-json", required=True,
+                   help='{"avatar variant": {"iterations": 150, ...}, ...}')
+    p.add_argument("--out", required=True)
+    p.add_argument("--plot", required=True)
+    p.add_argument("--demo", default="demo")
+    a = p.parse_args(argv)
+    df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
+    write_parquet(df, Path(a.out))
+    accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)
+    print(df.to_string(index=False))
+    return 0
+
+
+def report(argv: list[str]) -> int:
+    commands = {"html": _html, "ablations": _ablations, "sweep": _sweep}
+    if argv and argv[0] in commands:
+        return commands[argv[0]](argv[1:])
+    return _html(argv)

@@ -1,0 +1,408 @@
+"""The self-contained HTML report: ``reports/index.html`` with its images in ``reports/assets/``
+(relative links, so the folder opens from disk with no server and no network).
+
+One section per stage, built from :func:`signsplat.report.collect.collect`. A stage that did not
+run gets a section saying so. Every figure carries its wall-clock seconds beside it (from the
+Snakemake benchmark files, or the stage's own table when no benchmark exists).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jinja2
+import numpy as np
+import pandas as pd
+
+from signsplat.body import joints as J
+from signsplat.io.atomic import atomic_path
+from signsplat.io.images import read_rgb, write_png
+from signsplat.report import plots
+from signsplat.report.collect import Results, SceneTables, bench_seconds, collect
+
+
+@dataclass
+class Figure:
+    src: str  # path relative to the report
+    caption: str
+    seconds: float | None
+    seconds_note: str  # what the seconds measure
+    pixelated: bool = False
+
+
+@dataclass
+class Section:
+    id: str
+    title: str
+    intro: str = ""
+    missing: str = ""  # non-empty: the stage did not run, and why it is absent
+    tables: list[tuple[str, str]] = field(default_factory=list)  # (caption, html)
+    figures: list[Figure] = field(default_factory=list)
+
+
+class Assets:
+    """Copies or writes images into ``assets/`` beside the report; returns relative links."""
+
+    def __init__(self, report_dir: Path):
+        self.dir = Path(report_dir) / "assets"
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def name(self, key: str, suffix: str = ".png") -> Path:
+        stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", key)[-60:]
+        return self.dir / f"{hashlib.sha1(key.encode()).hexdigest()[:8]}_{stem}{suffix}"
+
+    def copy(self, src: Path) -> str:
+        dst = self.name(str(Path(src).resolve().with_suffix("")), Path(src).suffix)
+        with atomic_path(dst) as tmp:
+            shutil.copyfile(src, tmp)
+        return f"assets/{dst.name}"
+
+    def path(self, key: str) -> Path:
+        return self.name(key)
+
+    def rel(self, path: Path) -> str:
+        return f"assets/{Path(path).name}"
+
+
+def table_html(df: pd.DataFrame | None, max_rows: int = 200) -> str:
+    """A DataFrame as an HTML table (floats with 4 significant digits)."""
+    if df is None or not len(df):
+        return "<p class='missing'>no rows</p>"
+    df = df.head(max_rows)
+    return df.to_html(index=False, classes="data", border=0, na_rep="–",
+                      float_format=lambda v: f"{v:.4g}", escape=True)
+
+
+def _fmt_seconds(s: float | None) -> str:
+    return "n/a" if s is None or not np.isfinite(s) else f"{s:.1f} s"
+
+
+# --- sections ---------------------------------------------------------------------------------
+
+def _effects(spec: dict | None) -> str:
+    if not spec:
+        return "scene spec not found"
+    names = []
+    for e in spec.get("effects", []):
+        names.append(e if isinstance(e, str) else ", ".join(f"{k} {v}" for k, v in e.items()))
+    return "; ".join(names) or "none"
+
+
+def scene_section(res: Results, assets: Assets) -> Section:
+    sec = Section("scene", "1. Scene and effects simulated")
+    rows = []
+    for name, t in res.scenes.items():
+        if t.frames is None:
+            continue
+        cams = t.cameras
+        size = (f"{int(cams['width'].iloc[0])}x{int(cams['height'].iloc[0])}"
+                if cams is not None and len(cams) else "?")
+        secs = bench_seconds(res.benchmarks, "simulate", name)
+        rows.append({"scene": name, "views": t.frames["view"].nunique(),
+                     "frames": t.frames["frame"].nunique(), "image size": size,
+                     "effects": _effects(t.spec), "simulate seconds": secs})
+        for img in t.sim_images:
+            sec.figures.append(Figure(assets.copy(img), f"{name}: view {img.parent.name}, first "
+                                      "frame", secs, "simulate (whole scene)"))
+    if not rows:
+        sec.missing = "no simulated or extracted frames found (stage 1 did not run)"
+    else:
+        sec.tables.append(("Sequences", table_html(pd.DataFrame(rows))))
+    return sec
+
+
+def perception_section(res: Results) -> Section:
+    sec = Section("perception", "2. Perception accuracy and speed",
+                  "Mask IoU, PCK@0.05 and pixel error against the simulator's ground truth; "
+                  "frames per second of each stage.")
+    for name, t in res.scenes.items():
+        if t.perception_eval is not None:
+            pivot = t.perception_eval.pivot_table(index="part", columns="metric",
+                                                  values="value", aggfunc="first").reset_index()
+            sec.tables.append((f"{name}: accuracy and speed", table_html(pivot)))
+        if t.perception_timings is not None:
+            sec.tables.append((f"{name}: timings", table_html(t.perception_timings)))
+    if not sec.tables:
+        sec.missing = "no perception/eval.parquet found (perception stages did not run)"
+    return sec
+
+
+def fit_section(res: Results, assets: Assets) -> Section:
+    sec = Section("fit", "3. SMPL-X fitting errors",
+                  "MPJPE / PA-MPJPE per part, reprojection and camera errors; overlays show the "
+                  "fitted mesh and skeleton on the input images.")
+    for name, t in res.scenes.items():
+        if t.fit_eval is None:
+            continue
+        fe = t.fit_eval
+        secs = float(fe["seconds_total"].iloc[0]) if len(fe) else None
+        cols = [c for c in ("mode", "keypoints", "metric", "part", "value", "unit") if c in fe]
+        sec.tables.append((f"{name}: fit accuracy (fit took {_fmt_seconds(secs)})",
+                           table_html(fe[cols])))
+        bench = bench_seconds(res.benchmarks, "fit_smplx", name)
+        for img in t.fit_overlays:
+            sec.figures.append(Figure(assets.copy(img), f"{name}: {img.stem}",
+                                      bench if bench is not None else secs,
+                                      "fit_smplx (whole sequence)"))
+    if not sec.tables:
+        sec.missing = "no fit/fit_eval.parquet found (fitting did not run)"
+    return sec
+
+
+def colmap_section(res: Results) -> Section:
+    sec = Section("colmap", "4. COLMAP versus the SMPL-X camera solve")
+    keep = ["method", "setting", "frame", "images", "registered", "points3d", "reproj_error_px",
+            "rot_error_deg", "centre_error_m", "focal_error_pct", "seconds", "cpu_seconds",
+            "status"]
+    for name, t in res.scenes.items():
+        if t.colmap is not None:
+            sec.tables.append((name, table_html(t.colmap[[c for c in keep if c in t.colmap]])))
+    if not sec.tables:
+        sec.missing = "no colmap/colmap_compare.parquet found (multi-view scenes only)"
+    return sec
+
+
+def _avatar_summary(m: pd.DataFrame) -> pd.DataFrame:
+    """PSNR/SSIM/LPIPS per split and part (paper protocol: background replaced, no refine)."""
+    d = m
+    if "protocol" in d:
+        d = d[d["protocol"] == "bg_replaced"]
+    if "refine" in d:
+        d = d[~d["refine"].astype(bool)]
+    out = d.pivot_table(index=["split", "part"], columns="metric", values="value",
+                        aggfunc="mean").reset_index()
+    out.columns.name = None
+    return out
+
+
+CLOSEUP_PARTS = {"left_hand": (J.KP_LEFT_HAND, 0.18), "right_hand": (J.KP_RIGHT_HAND, 0.18),
+                 "face": (J.KP_FACE, 0.25)}
+_PANEL = re.compile(r"f(\d+)_v(\d+)")
+
+
+def closeups(panel_path: Path, kp: pd.DataFrame, cams: pd.DataFrame | None,
+             out: dict[str, Path]) -> dict[str, Path]:
+    """Crop hands and face out of a (ground truth | render | error) panel, the three crops side
+    by side. Crop centres are the mean of the part's 2D keypoints in that view and frame
+    (rescaled from the camera's native size to the panel's). Returns part -> written path."""
+    m = _PANEL.search(panel_path.stem)
+    if m is None or kp is None:
+        return {}
+    frame, view = int(m.group(1)), int(m.group(2))
+    sel = kp[(kp["frame"] == frame) & (kp["view"] == view)]
+    if not len(sel):
+        return {}
+    panel = read_rgb(panel_path)
+    h, w3 = panel.shape[:2]
+    w = w3 // 3
+    native_w, native_h = w, h
+    if cams is not None and len(cams):
+        c = cams[cams["view"] == view]
+        if len(c):
+            native_w, native_h = int(c["width"].iloc[0]), int(c["height"].iloc[0])
+    sx, sy = w / native_w, h / native_h
+    written = {}
+    for part, (idx, frac) in CLOSEUP_PARTS.items():
+        p = sel[sel["kp"].isin(idx)]
+        if "score" in p:
+            p = p[p["score"] > 0]
+        p = p[np.isfinite(p["x"]) & np.isfinite(p["y"])]
+        if not len(p):
+            continue
+        cx, cy = float(p["x"].mean()) * sx, float(p["y"].mean()) * sy
+        half = max(4, int(round(frac * max(w, h) / 2)))
+        x0 = int(np.clip(round(cx) - half, 0, max(0, w - 2 * half)))
+        y0 = int(np.clip(round(cy) - half, 0, max(0, h - 2 * half)))
+        tiles = [panel[y0:y0 + 2 * half, k * w + x0:k * w + x0 + 2 * half] for k in range(3)]
+        if min(t.size for t in tiles) == 0:
+            continue
+        written[part] = write_png(out[part], np.concatenate(tiles, 1))
+    return written
+
+
+def avatar_section(res: Results, assets: Assets) -> Section:
+    sec = Section("avatar", "5. Avatar metrics per part",
+                  "Held-out frames (novel pose) and cameras (novel view); protocol "
+                  "'bg_replaced' without test-time refinement (the paper's). Images: "
+                  "ground truth | render | error map (inferno, x4). Close-ups crop hands and "
+                  "face around their 2D keypoints.")
+    for name, t in res.scenes.items():
+        kp = pd.read_parquet(t.keypoints_2d, columns=["view", "frame", "kp", "x", "y", "score"]) \
+            if t.keypoints_2d is not None and t.avatar_images else None
+        for variant, m in t.avatar_metrics.items():
+            train_s = bench_seconds(res.benchmarks, f"train_avatar_{variant}", name)
+            eval_s = bench_seconds(res.benchmarks, f"evaluate_{variant}", name)
+            if train_s is None and "train_seconds" in m and len(m):
+                train_s = float(m["train_seconds"].iloc[0])
+            sec.tables.append((f"{name} / {variant}: training {_fmt_seconds(train_s)}, "
+                               f"evaluation {_fmt_seconds(eval_s)}", table_html(_avatar_summary(m))))
+            for img in t.avatar_images.get(variant, []):
+                sec.figures.append(Figure(assets.copy(img), f"{name} / {variant}: {img.stem} "
+                                          "(ground truth | render | error)", train_s,
+                                          "train_avatar"))
+                key = f"{name}_{variant}_{img.stem}"
+                crops = closeups(img, kp, t.cameras,
+                                 {p: assets.path(f"{key}_{p}") for p in CLOSEUP_PARTS})
+                for part, path in crops.items():
+                    sec.figures.append(Figure(assets.rel(path), f"{name} / {variant}: "
+                                              f"{img.stem} {part} close-up", train_s,
+                                              "train_avatar", pixelated=True))
+        if t.train_logs:
+            path = plots.training_curves(t.train_logs, assets.path(f"{name}_training_curves"))
+            total = sum(float(df["seconds"].max()) for df in t.train_logs.values()
+                        if "seconds" in df and len(df))
+            sec.figures.append(Figure(assets.rel(path), f"{name}: training PSNR against "
+                                      "seconds, per variant", total,
+                                      "training seconds, all variants"))
+    if not sec.tables:
+        sec.missing = "no eval/{variant}/metrics.parquet found (the avatar was not evaluated)"
+    return sec
+
+
+def ablation_section(res: Results, assets: Assets) -> Section:
+    sec = Section("ablations", "6. Ablations (paper Table 5)",
+                  "Same scene, split and seed; reduced training budget (see workflow/rules/"
+                  "report.smk). Training seconds from the Snakemake benchmark files.")
+    for name, t in res.scenes.items():
+        if t.ablations is None or not len(t.ablations):
+            continue
+        a = t.ablations
+        sec.tables.append((name, table_html(a)))
+        if "ssim" in a and a["ssim"].notna().any():
+            path = plots.bars(a.set_index("variant")["ssim"], assets.path(f"{name}_ablation"),
+                              "SSIM (novel pose, full image)")
+            sec.figures.append(Figure(assets.rel(path), f"{name}: SSIM per ablation",
+                                      float(a["train_seconds"].sum()),
+                                      "training seconds, all ablation variants"))
+    if not sec.tables:
+        sec.missing = "no {scene}/ablations.parquet found (run `snakemake ablations`)"
+    return sec
+
+
+def sweep_section(res: Results, assets: Assets, demo: str) -> Section:
+    sec = Section("sweep", "7. Accuracy versus time",
+                  "Each point is one setting; seconds are wall-clock from the Snakemake "
+                  "benchmark files (training + evaluation). Red: the Pareto front (no other "
+                  "setting is both faster and better). Star: the `make demo` configuration.")
+    for name, t in res.scenes.items():
+        if t.sweep is None or not len(t.sweep):
+            continue
+        s = t.sweep.copy()
+        s["pareto_psnr"] = plots.pareto_front(s["seconds"], s["psnr"])
+        if "ssim" in s:
+            s["pareto_ssim"] = plots.pareto_front(s["seconds"], s["ssim"])
+        path = plots.accuracy_vs_time(s, assets.path(f"{name}_sweep"), label="setting",
+                                      highlight=demo, title=name)
+        sec.figures.append(Figure(assets.rel(path), f"{name}: PSNR/SSIM against seconds",
+                                  float(s["seconds"].sum()), "all sweep settings together"))
+        sec.tables.append((name, table_html(s)))
+    if not sec.tables:
+        sec.missing = "no {scene}/sweep.parquet found (run `snakemake sweep`)"
+    return sec
+
+
+def _video_frames(video: Path, n: int, out_key: str, assets: Assets) -> list[Path]:
+    from signsplat.io.video import iter_frames
+
+    frames = [f for _, f in iter_frames(video)]
+    picks = np.linspace(0, len(frames) - 1, num=min(n, len(frames))).round().astype(int) \
+        if frames else []
+    return [write_png(assets.path(f"{out_key}_{i:04d}"), frames[i]) for i in picks]
+
+
+def stitch_section(res: Results, assets: Assets) -> Section:
+    sec = Section("stitch", "8. Stitched video")
+    for path, df in res.stitch_tables:
+        sec.tables.append((str(path.relative_to(res.root)), table_html(df)))
+    secs = None
+    sel = res.benchmarks[res.benchmarks["job"].str.startswith("stitch")]
+    if len(sel):
+        secs = float(sel["seconds"].sum())
+    for video in res.stitch_videos[:3]:
+        for f in _video_frames(video, 4, video.stem, assets):
+            sec.figures.append(Figure(assets.rel(f), f"{video.name}: frame {f.stem[-4:]}",
+                                      secs, "stitch rules (benchmark)"))
+    if not sec.tables and not sec.figures:
+        sec.missing = "no stitched video or stitch_eval.parquet found (stitching did not run)"
+    return sec
+
+
+def runtime_section(res: Results, assets: Assets) -> Section:
+    sec = Section("runtimes", "9. Run time per rule",
+                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory).")
+    b = res.benchmarks
+    if not len(b):
+        sec.missing = "no benchmark files in results/_benchmarks"
+        return sec
+    path = plots.rule_times(b, assets.path("rule_times"))
+    sec.figures.append(Figure(assets.rel(path), "seconds per job (longest 30)",
+                              float(b["seconds"].sum()), "sum over all jobs"))
+    sec.tables.append(("Jobs", table_html(b.drop(columns=["file"]).sort_values(
+        "seconds", ascending=False))))
+    return sec
+
+
+# --- page -------------------------------------------------------------------------------------
+
+TEMPLATE = jinja2.Template("""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>{{ title|e }}</title>
+<style>
+body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;color:#222}
+h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+table.data{border-collapse:collapse;font-size:.85em;margin:.5em 0 1em}
+table.data th,table.data td{border:1px solid #ddd;padding:2px 6px;text-align:right}
+table.data th{background:#f3f3f3}
+.figs{display:flex;flex-wrap:wrap;gap:12px}
+figure{margin:0;max-width:100%}
+figure img{max-width:100%;border:1px solid #ddd}
+figure img.px{image-rendering:pixelated;width:360px}
+figcaption{font-size:.8em;color:#444}
+.secs{font-weight:bold;color:#0a5}
+.missing{color:#a60;font-style:italic}
+nav a{margin-right:1em}
+</style></head><body>
+<h1>{{ title|e }}</h1>
+<p>Results folder: <code>{{ root|e }}</code>. Sequences: {{ scenes|join(', ')|e or 'none' }}.</p>
+<nav>{% for s in sections %}<a href="#{{ s.id }}">{{ s.title|e }}</a>{% endfor %}</nav>
+{% for s in sections %}
+<section id="{{ s.id }}"><h2>{{ s.title|e }}</h2>
+{% if s.intro %}<p>{{ s.intro|e }}</p>{% endif %}
+{% if s.missing %}<p class="missing">Not available: {{ s.missing|e }}.</p>{% endif %}
+{% for cap, tab in s.tables %}<h3>{{ cap|e }}</h3>{{ tab|safe }}{% endfor %}
+{% if s.figures %}<div class="figs">{% for f in s.figures %}
+<figure><img src="{{ f.src|e }}" alt="{{ f.caption|e }}"{% if f.pixelated %} class="px"{% endif %}>
+<figcaption>{{ f.caption|e }} · <span class="secs">{{ fmt(f.seconds) }}</span>
+({{ f.seconds_note|e }})</figcaption></figure>{% endfor %}</div>{% endif %}
+</section>
+{% endfor %}
+</body></html>
+""")
+
+
+def build_sections(res: Results, report_dir: Path, demo: str = "demo") -> list[Section]:
+    assets = Assets(report_dir)
+    return [scene_section(res, assets), perception_section(res), fit_section(res, assets),
+            colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
+            sweep_section(res, assets, demo), stitch_section(res, assets),
+            runtime_section(res, assets)]
+
+
+def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
+                 demo: str = "demo", title: str = "SignSplat report") -> Path:
+    """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder)."""
+    out = Path(out)
+    res = collect(results, repo_scenes)
+    sections = build_sections(res, out.parent, demo)
+    page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),
+                           scenes=list(res.scenes), sections=sections, fmt=_fmt_seconds)
+    with atomic_path(out) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return out
+
+
+__all__ = ["write_report", "build_sections", "closeups", "table_html", "Figure", "Section"]

@@ -1,0 +1,109 @@
+"""Figures of the report (matplotlib, Agg backend, PNG files). Each function takes plain data,
+writes one PNG atomically and returns its path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from signsplat.io.atomic import atomic_path  # noqa: E402
+
+
+def pareto_front(seconds, quality) -> np.ndarray:
+    """Bool mask of the points no other point beats: another point dominates a point when it
+    takes no more seconds, has no lower quality, and is strictly better in one of the two.
+    NaN points are never on the front."""
+    s = np.asarray(seconds, dtype=float)
+    q = np.asarray(quality, dtype=float)
+    ok = np.isfinite(s) & np.isfinite(q)
+    front = np.zeros(len(s), dtype=bool)
+    for i in np.flatnonzero(ok):
+        better = ok & (s <= s[i]) & (q >= q[i]) & ((s < s[i]) | (q > q[i]))
+        front[i] = not better.any()
+    return front
+
+
+def _save(fig, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
+                     seconds="seconds", label="setting", highlight: str | None = None,
+                     title: str = "") -> Path:
+    """One panel per metric: quality against wall-clock seconds (log x), the Pareto front as a
+    line, the ``highlight`` setting (the demo configuration) as a star."""
+    metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
+    fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
+                             squeeze=False)
+    for ax, m in zip(axes[0], metrics):
+        d = df[[seconds, m, label]].dropna(subset=[seconds, m])
+        front = pareto_front(d[seconds], d[m])
+        ax.scatter(d[seconds], d[m], c="0.55", s=28, label="setting", zorder=2)
+        f = d[front].sort_values(seconds)
+        ax.step(f[seconds], f[m], where="post", color="tab:red", lw=1.5, zorder=3)
+        ax.scatter(f[seconds], f[m], c="tab:red", s=40, label="Pareto front", zorder=4)
+        for _, r in d.iterrows():
+            ax.annotate(str(r[label]), (r[seconds], r[m]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+        if highlight is not None and (d[label] == highlight).any():
+            h = d[d[label] == highlight]
+            ax.scatter(h[seconds], h[m], marker="*", s=260, facecolor="gold",
+                       edgecolor="black", label=f"demo ({highlight})", zorder=5)
+        if (d[seconds] > 0).all() and len(d) > 1:
+            ax.set_xscale("log")
+        ax.set_xlabel("wall-clock seconds (Snakemake benchmark)")
+        ax.set_ylabel(m.upper())
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    if not metrics:
+        axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def rule_times(bench: pd.DataFrame, path: Path, top: int = 30) -> Path:
+    """Horizontal bars: seconds per benchmarked job (scene/job), longest first."""
+    d = bench.sort_values("seconds", ascending=False).head(top)
+    names = [f"{s}/{j}" if s else j for s, j in zip(d["scene"], d["job"])]
+    fig, ax = plt.subplots(figsize=(7, 0.28 * len(d) + 1.2))
+    ax.barh(names[::-1], d["seconds"].to_numpy()[::-1], color="tab:blue")
+    ax.set_xlabel("wall-clock seconds")
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, path)
+
+
+def bars(values: pd.Series, path: Path, xlabel: str, title: str = "") -> Path:
+    """Horizontal bars of a labelled series (e.g. ablation SSIM per variant)."""
+    fig, ax = plt.subplots(figsize=(6, 0.35 * len(values) + 1.2))
+    ax.barh([str(i) for i in values.index[::-1]], values.to_numpy()[::-1], color="tab:green")
+    ax.set_xlabel(xlabel)
+    if title:
+        ax.set_title(title)
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, path)
+
+
+def training_curves(logs: dict[str, pd.DataFrame], path: Path) -> Path:
+    """Training PSNR against training seconds, one line per variant."""
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for name, df in logs.items():
+        if {"seconds", "psnr"} <= set(df.columns):
+            ax.plot(df["seconds"], df["psnr"], label=name, lw=1)
+    ax.set_xlabel("training seconds")
+    ax.set_ylabel("train PSNR (dB)")
+    ax.grid(alpha=0.3)
+    if logs:
+        ax.legend(fontsize=7)
+    return _save(fig, path)

@@ -1,0 +1,117 @@
+"""The report generator: collecting tables, the Pareto front, close-ups, ablation/sweep
+summaries and the HTML page (without a browser; see test_browser.py for the real page)."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from signsplat.io.images import read_rgb
+from signsplat.report import plots, runs
+from signsplat.report.collect import collect, read_benchmarks
+from signsplat.report.html import closeups, write_report
+
+from .conftest import build_results
+
+
+def test_pareto_front_matches_brute_force_definition():
+    rng = np.random.default_rng(0)
+    s, q = rng.uniform(1, 100, 40), rng.uniform(10, 30, 40)
+    s[5], q[5] = np.nan, 99.0  # NaN never on the front even with the best quality
+    front = plots.pareto_front(s, q)
+    for i in range(40):
+        dominated = any(j != i and s[j] <= s[i] and q[j] >= q[i] and (s[j] < s[i] or q[j] > q[i])
+                        for j in range(40) if np.isfinite(s[j]))
+        assert front[i] == (np.isfinite(s[i]) and not dominated)
+    assert plots.pareto_front([1, 2, 3], [10, 9, 11]).tolist() == [True, False, True]
+
+
+def test_benchmarks_are_read_per_scene_and_job(results_dir):
+    b = read_benchmarks(results_dir / "_benchmarks")
+    row = b[(b.job == "train_avatar_demo") & (b.scene == "tiny")]
+    assert len(row) == 1 and row.seconds.iloc[0] == pytest.approx(900.0)
+    assert b[b.job == "body_model"].scene.iloc[0] == ""
+
+
+def test_collect_finds_every_stage(results_dir):
+    res = collect(results_dir)
+    t = res.scenes["tiny"]
+    assert t.perception_eval is not None and t.fit_eval is not None and t.colmap is not None
+    assert set(t.avatar_metrics) == {"demo", "abl_full", "abl_no_reg", "sw_it150"}
+    assert len(t.fit_overlays) == 1 and len(t.sim_images) == 2
+    assert len(res.stitch_tables) == 1 and len(res.stitch_videos) == 1
+
+
+def test_ablation_and_sweep_tables_use_benchmark_seconds(results_dir):
+    a = runs.ablation_table(results_dir, "tiny", {"full": "abl_full", "w/o reg": "abl_no_reg"})
+    full = a.set_index("variant").loc["full"]
+    assert full.psnr == pytest.approx(22.0)  # no refinement, full image
+    assert full.hand_psnr == pytest.approx(22.0 - 2.0)  # mean of -3 and -1 offsets
+    assert full.train_seconds == pytest.approx(200.0)  # the benchmark, not train_seconds (195)
+    assert full.points == 1300
+    assert "lpips" not in a.columns  # LPIPS not available -> no column
+    sw = runs.sweep_table(results_dir, "tiny", {"sw_it150": {"iterations": 150},
+                                                "abl_full": {"iterations": 300},
+                                                "demo": {"iterations": 1500}})
+    assert sw.seconds.tolist() == pytest.approx([106.0, 206.0, 906.0])
+    assert sw.pareto_psnr.tolist() == [True, True, True]
+    assert sw.set_index("setting").loc["abl_full", "iterations"] == 300
+
+
+def test_closeup_crops_are_centred_on_the_keypoints(results_dir, tmp_path):
+    res = collect(results_dir)
+    t = res.scenes["tiny"]
+    kp = pd.read_parquet(t.keypoints_2d)
+    img = t.avatar_images["demo"][0]
+    out = closeups(img, kp, t.cameras, {p: tmp_path / f"{p}.png"
+                                        for p in ("left_hand", "right_hand", "face")})
+    assert set(out) == {"left_hand", "right_hand", "face"}
+    crop = read_rgb(out["left_hand"])
+    side = crop.shape[0]
+    assert crop.shape[1] == 3 * side  # gt | render | error crops side by side
+    for k in range(3):  # the red marker (pixels 14..18, 38..42) sits at each tile's centre
+        tile = crop[:, k * side:(k + 1) * side]
+        ys, xs = np.nonzero((tile[..., 0] == 255) & (tile[..., 1] == 0))
+        assert len(ys) == 25
+        assert abs(ys.mean() - side / 2) <= 1.5 and abs(xs.mean() - side / 2) <= 1.5
+
+
+def test_report_has_every_section_and_seconds_beside_every_figure(results_dir, tmp_path):
+    out = write_report(results_dir, tmp_path / "rep" / "index.html")
+    page = out.read_text()
+    for sid in ("scene", "perception", "fit", "colmap", "avatar", "ablations", "sweep",
+                "stitch", "runtimes"):
+        assert f'id="{sid}"' in page
+    figures = re.findall(r"<figure>(.*?)</figure>", page, re.S)
+    assert len(figures) >= 10
+    for f in figures:
+        assert re.search(r'class="secs">[0-9.]+ s<', f), f
+        src = re.search(r'src="([^"]+)"', f).group(1)
+        assert not src.startswith(("/", "http")) and (out.parent / src).is_file()
+    assert "900.0 s" in page  # demo training seconds from its benchmark file
+    assert "Not available" not in page.split('id="ablations"')[0]
+
+
+def test_report_of_a_partial_run_says_which_stages_did_not_run(tmp_path):
+    root = build_results(tmp_path / "results", full=False)
+    page = write_report(root, tmp_path / "rep" / "index.html").read_text()
+    for sid in ("perception", "fit", "colmap", "avatar", "ablations", "sweep", "stitch"):
+        section = page.split(f'id="{sid}"')[1].split("<section")[0]
+        assert "Not available" in section, sid
+    assert "Not available" not in page.split('id="scene"')[1].split("<section")[0]
+    assert 'id="runtimes"' in page and "12.2 s" in page  # simulate benchmark (12.25 s)
+
+
+def test_report_command_writes_the_page(results_dir, tmp_path):
+    from signsplat.cli import main
+
+    out = tmp_path / "r" / "index.html"
+    assert main(["report", "--results", str(results_dir), "--out", str(out)]) == 0
+    assert out.is_file() and any((out.parent / "assets").iterdir())
+    sweep_out, plot = tmp_path / "sweep.parquet", tmp_path / "sweep.png"
+    assert main(["report", "sweep", "--results", str(results_dir), "--scene", "tiny",
+                 "--settings-json", '{"sw_it150": {"iterations": 150}, "demo": {}}',
+                 "--out", str(sweep_out), "--plot", str(plot)]) == 0
+    assert len(pd.read_parquet(sweep_out)) == 2 and read_rgb(plot).shape[0] > 100
