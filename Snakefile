@@ -17,6 +17,7 @@ include: "workflow/rules/fit.smk"
 include: "workflow/rules/colmap.smk"
 include: "workflow/rules/avatar.smk"
 include: "workflow/rules/stitch.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:
