@@ -143,6 +143,15 @@ def build_results(root: Path, scene: str = "tiny", full: bool = True) -> Path:
         w.write(np.full((32, 32, 3), 40 * i, dtype=np.uint8))
     w.close()
     bench(root / "_benchmarks" / "stitch_video_hello.tsv", 2.0)
+    from signsplat.report import runs
+
+    runs.write_parquet(runs.ablation_table(root, scene, {"full": "abl_full",
+                                                         "w/o regularisation": "abl_no_reg"}),
+                       s / "ablations.parquet")
+    runs.write_parquet(runs.sweep_table(root, scene, {"sw_it150": {"iterations": 150},
+                                                      "abl_full": {"iterations": 300},
+                                                      "demo": {"iterations": 1500}}),
+                       s / "sweep.parquet")
     return root
 
 
