@@ -1,10 +1,15 @@
 # Stage: the Gaussian-splat avatar (train-avatar) and its evaluation (evaluate).
 # The `avatar` config section is validated against workflow/schemas/stages/avatar.schema.yaml;
-# a variant is that section with a named profile applied (demo, quality). Ablation variants
-# can be added to AVATAR_VARIANTS as further overrides. No science here.
+# a variant is that section with a named profile and overrides applied (deep merge): demo,
+# quality, the ablation variants (config `ablations`: demo profile + `ablations.base` + one
+# switch flipped) and the sweep variants (config `sweep`: one of iterations, resolution, point
+# budget changed). A variant whose resolved config equals an earlier one is that variant (the
+# full ablation with an empty base is `demo`, trained once). No science here.
 import copy
+import json
 
 from signsplat.avatar.config import resolve as resolve_avatar_config
+from signsplat.report.variants import ablation_plan, deep_merge, sweep_plan, sweep_values
 
 AVATAR_BASE = config.get("avatar", {})
 AVATAR_VARIANTS = {
@@ -13,13 +18,67 @@ AVATAR_VARIANTS = {
 }
 # Variants built by `rule all` (the quality profile is asked for explicitly).
 AVATAR_DEFAULT_VARIANTS = ["demo"]
+_RESOLVED = {}
 
 
 def avatar_variant_config(variant):
     """The resolved (validated, defaults filled) avatar section of a variant."""
-    merged = copy.deepcopy(AVATAR_BASE)
-    merged.update(AVATAR_VARIANTS[variant])
-    return resolve_avatar_config(merged, f"avatar variant {variant!r}")
+    if variant not in _RESOLVED:
+        _RESOLVED[variant] = resolve_avatar_config(
+            deep_merge(AVATAR_BASE, AVATAR_VARIANTS[variant]), f"avatar variant {variant!r}")
+    return copy.deepcopy(_RESOLVED[variant])
+
+
+def add_avatar_variant(name, overrides):
+    """Register a variant; returns the name of an existing variant with the same resolved
+    config instead when there is one."""
+    AVATAR_VARIANTS[name] = overrides
+    mine = avatar_variant_config(name)
+    for known in AVATAR_VARIANTS:
+        if known != name and avatar_variant_config(known) == mine:
+            del AVATAR_VARIANTS[name]
+            del _RESOLVED[name]
+            return known
+    return name
+
+
+def study_scene(key):
+    """Sequence of the ablation / sweep study: config `<key>.scene`, or the default
+    multi-view scene (the first synthetic sequence with more than one camera)."""
+    scene = config[key]["scene"]
+    if scene is None:
+        multi = [n for n in SCENES if num_views(n) > 1]
+        return (multi or list(SCENES) or list(SEQUENCES) or [None])[0]
+    if scene not in SEQUENCES:
+        raise ValueError(f"config/config.yaml: {key}.scene = {scene!r} is not a sequence of "
+                         f"this run; allowed: {sorted(SEQUENCES)}")
+    return scene
+
+
+ABLATION_SCENE = study_scene("ablations")
+# label -> {"variant": name, "switches": {...}}; rows of ablations.parquet in this order.
+ABLATIONS = {}
+_abl_base = resolve_avatar_config(deep_merge(AVATAR_BASE, deep_merge(
+    {"profile": "demo"}, config["ablations"]["base"])), "config key 'ablations.base'")
+for _p in ablation_plan(config["ablations"]["base"], _abl_base["train"]["smplx_source"],
+                        with_source=ABLATION_SCENE in SCENES):
+    _name = add_avatar_variant(_p.name, _p.overrides)
+    ABLATIONS[_p.label] = {"variant": _name, "overrides": _p.overrides}
+
+SWEEP_SCENE = study_scene("sweep")
+# variant -> the values shown beside its scores (swept axis, iterations, resolution, points).
+SWEEP = {}
+_native = (SCENES[SWEEP_SCENE]["cameras"]["width"] if SWEEP_SCENE in SCENES else 0)
+for _p in sweep_plan(config["sweep"]["base"], {k: config["sweep"][k] for k in
+                                                 ("iterations", "resolution", "max_points")}):
+    _name = add_avatar_variant(_p.name, _p.overrides)
+    if _name not in SWEEP:
+        SWEEP[_name] = {**_p.values, **sweep_values(avatar_variant_config(_name), _native)}
+# the `make demo` configuration is always a point of the sweep (starred on the plot)
+if "demo" not in SWEEP:
+    SWEEP["demo"] = {"swept": "demo", **sweep_values(avatar_variant_config("demo"), _native)}
+# Sweep variants are evaluated at the native image size (scores comparable across resolutions).
+NATIVE_EVAL_VARIANTS = set(SWEEP)
 
 
 def avatar_smplx_source(wildcards):
@@ -48,6 +107,14 @@ def avatar_inputs(wildcards):
 def avatar_params(wildcards):
     cfg = avatar_variant_config(wildcards.variant)
     cfg["train"]["smplx_source"] = avatar_smplx_source(wildcards)
+    return as_json(cfg)
+
+
+def avatar_eval_params(wildcards):
+    """As avatar_params; sweep variants load the evaluation images at the native size."""
+    cfg = json.loads(avatar_params(wildcards))
+    if wildcards.variant in NATIVE_EVAL_VARIANTS:
+        cfg["train"]["resolution"] = 0
     return as_json(cfg)
 
 
@@ -85,10 +152,14 @@ rule evaluate_avatar:
         unpack(avatar_inputs),
         checkpoint=rules.train_avatar.output.checkpoint,
     output:
-        metrics=f"{RESULTS}/{{scene}}/eval/{{variant}}/metrics.parquet",
-        images=directory(f"{RESULTS}/{{scene}}/eval/{{variant}}/images"),
+        metrics=report(f"{RESULTS}/{{scene}}/eval/{{variant}}/metrics.parquet",
+                       caption="../report/avatar_metrics.rst", category="5. Avatar",
+                       subcategory="{variant}"),
+        images=report(directory(f"{RESULTS}/{{scene}}/eval/{{variant}}/images"),
+                      patterns=["{name}.png"], caption="../report/avatar_images.rst",
+                      category="5. Avatar", subcategory="{variant}"),
     params:
-        cfg=avatar_params,
+        cfg=avatar_eval_params,
         out=f"{RESULTS}/{{scene}}/eval/{{variant}}",
     log:
         f"{RESULTS}/_logs/{{scene}}/evaluate_{{variant}}.log",

@@ -33,12 +33,15 @@ rule stitch_video:
         library=rules.gloss_library.output[0],
         cameras=stitch_cameras,
     output:
-        videos=stitch_files(".mp4"),
-        baselines=stitch_files(".baseline2d.mp4"),
+        videos=[report(f, caption="../report/stitch_video.rst", category="8. Stitched video")
+                for f in stitch_files(".mp4")],
+        baselines=[report(f, caption="../report/stitch_baseline.rst",
+                          category="8. Stitched video") for f in stitch_files(".baseline2d.mp4")],
         tracks=stitch_files(".smplx.parquet"),
         plans=stitch_files(".plan.txt"),
         plans_json=stitch_files(".plan.json"),
-        eval=f"{RESULTS}/{{scene}}/stitched/stitch_eval.parquet",
+        eval=report(f"{RESULTS}/{{scene}}/stitched/stitch_eval.parquet",
+                    caption="../report/stitch_eval.rst", category="8. Stitched video"),
     params:
         sentences=" ".join(shlex.quote(s) for s in STITCH_SENTENCES.values()),
         ids=" ".join(f"--id {i}" for i in STITCH_SENTENCES),

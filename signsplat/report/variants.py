@@ -1,0 +1,106 @@
+"""The avatar variants behind the ``ablations`` and ``sweep`` workflow targets (plain data).
+
+A variant is the ``avatar`` config section with overrides applied (see workflow/rules/avatar.smk).
+Ablation variants are the demo profile plus the config's ``ablations.base`` with exactly one
+switch of the avatar schema flipped (paper Table 5, plus the static mesh-anchored baseline and
+the SMPL-X source). Sweep variants change one of training iterations, image resolution or point
+budget of the ``sweep.base`` setting at a time (a one-factor-at-a-time sweep around the centre).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any
+
+# (variant name, row label, override, switches of the row); `full` flips nothing.
+_SWITCHES: list[tuple[str, str, dict]] = [
+    ("abl_full", "full", {}),
+    ("abl_no_reg", "w/o regularisation", {"regularize": {"enabled": False}}),
+    ("abl_no_dens", "w/o densification", {"strategy": {"enabled": False}}),
+    ("abl_no_acc", "w/o loss accumulation", {"train": {"accumulate": False}}),
+    ("abl_static", "w/o pose-dependent networks (static mesh-anchored)",
+     {"model": {"pose_dependent": False}}),
+]
+# The avatar-schema fields read back as the switch columns of ablations.parquet.
+SWITCH_FIELDS = {"regularize": ("regularize", "enabled"), "densify": ("strategy", "enabled"),
+                 "accumulate": ("train", "accumulate"), "pose_dependent": ("model", "pose_dependent")}
+SWEEP_AXES = {"iterations": ("train", "iterations"), "resolution": ("train", "resolution"),
+              "max_points": ("strategy", "max_points")}
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    """``over`` applied on a copy of ``base``; nested dicts are merged key by key."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _get(cfg: dict, path: tuple[str, str]) -> Any:
+    return cfg[path[0]][path[1]]
+
+
+@dataclass
+class Planned:
+    """One ablation row or sweep point: its label, the variant's overrides of the ``avatar``
+    section, and the values shown beside its scores."""
+
+    label: str
+    name: str
+    overrides: dict
+    values: dict = field(default_factory=dict)
+
+
+def ablation_plan(base: dict, base_source: str, with_source: bool = True) -> list[Planned]:
+    """The ablation rows. ``base``: avatar overrides shared by every row (over the demo profile);
+    ``base_source``: the SMPL-X source the resolved base trains on (``fitted`` or
+    ``ground_truth``); ``with_source``: add the row that trains on the other source (only when
+    the sequence has ground truth)."""
+    start = deep_merge({"profile": "demo"}, base)
+    rows = [Planned(label, name, deep_merge(start, over)) for name, label, over in _SWITCHES]
+    if with_source:
+        other = "ground_truth" if base_source == "fitted" else "fitted"
+        name = "abl_gt_smplx" if other == "ground_truth" else "abl_fitted_smplx"
+        label = ("ground-truth SMPL-X" if other == "ground_truth" else "fitted SMPL-X")
+        rows.append(Planned(label, name, deep_merge(start, {"train": {"smplx_source": other}})))
+    return rows
+
+
+def switch_values(resolved: dict) -> dict:
+    """The switch columns (regularize, densify, accumulate, pose_dependent, smplx_source) of a
+    resolved avatar config."""
+    out = {k: bool(_get(resolved, p)) for k, p in SWITCH_FIELDS.items()}
+    out["smplx_source"] = resolved["train"]["smplx_source"]
+    return out
+
+
+def sweep_plan(base: dict, axes: dict[str, list[int]]) -> list[Planned]:
+    """The sweep points: the centre (demo profile + ``base``) and, for every axis in ``axes``
+    (iterations, resolution, max_points), one point per listed value with only that value
+    changed. Names: ``sw_base``, ``sw_iterations{v}``, ``sw_resolution{v}``, ``sw_max_points{v}``.
+    ``values`` holds the axis that moved (``swept``) and its value."""
+    unknown = sorted(set(axes) - set(SWEEP_AXES))
+    if unknown:
+        raise ValueError(f"sweep: unknown axis {unknown}; allowed {sorted(SWEEP_AXES)}")
+    start = deep_merge({"profile": "demo"}, base)
+    points = [Planned("centre", "sw_base", start, {"swept": "centre"})]
+    for axis, values in axes.items():
+        section, key = SWEEP_AXES[axis]
+        for v in values:
+            points.append(Planned(f"{axis}={v}", f"sw_{axis}{int(v)}",
+                                  deep_merge(start, {section: {key: int(v)}}),
+                                  {"swept": axis}))
+    return points
+
+
+def sweep_values(resolved: dict, native_size: int) -> dict:
+    """Iterations, image side in pixels (``native_size`` when the resolution is 0 = native) and
+    point budget of a resolved avatar config."""
+    res = int(resolved["train"]["resolution"])
+    return {"iterations": int(resolved["train"]["iterations"]),
+            "resolution": res if res > 0 else int(native_size),
+            "max_points": int(resolved["strategy"]["max_points"])}
