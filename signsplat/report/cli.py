@@ -3,7 +3,8 @@
 - ``signsplat report [html] --results results --out reports/index.html`` writes the report
   (assets in ``reports/assets/``); stages that did not run get a section saying so.
 - ``signsplat report ablations --results R --scene S --variants-json '{"full": "abl_full"}'
-  --out R/S/ablations.parquet``
+  --out R/S/ablations.parquet`` (a label may also map to ``{"variant": ..., "regularize":
+  true, "densify": true, "accumulate": true, "pose_dependent": true}``)
 - ``signsplat report sweep --results R --scene S --settings-json '{"sw_it150": {...}}'
   --out R/S/sweep.parquet --plot R/S/sweep.png --demo demo``
 """
@@ -35,7 +36,7 @@ def _html(argv: list[str]) -> int:
 
 
 def _ablations(argv: list[str]) -> int:
-    from signsplat.report.runs import ablation_table, write_parquet
+    from signsplat.report.runs import ablation_table, ssim_finding, write_parquet
 
     p = argparse.ArgumentParser(prog="signsplat report ablations")
     p.add_argument("--results", required=True)
@@ -44,8 +45,9 @@ def _ablations(argv: list[str]) -> int:
     p.add_argument("--out", required=True)
     a = p.parse_args(argv)
     df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
-    write_parquet(df, Path(a.out))
+    write_parquet(df, Path(a.out), "ablations")
     print(df.to_string(index=False))
+    print(ssim_finding(df))
     return 0
 
 
@@ -57,13 +59,14 @@ def _sweep(argv: list[str]) -> int:
     p.add_argument("--results", required=True)
     p.add_argument("--scene", required=True)
     p.add_argument("--settings-json", required=True,
-                   help='{"avatar variant": {"iterations": 150, ...}, ...}')
+                   help='{"avatar variant": {"swept": "iterations", "iterations": 150, '
+                   '"resolution": 256, "max_points": 40000}, ...}')
     p.add_argument("--out", required=True)
     p.add_argument("--plot", required=True)
     p.add_argument("--demo", default="demo")
     a = p.parse_args(argv)
     df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
-    write_parquet(df, Path(a.out))
+    write_parquet(df, Path(a.out), "sweep")
     accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)
     print(df.to_string(index=False))
     return 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from html import escape
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import pandas as pd
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
-from signsplat.report import plots
+from signsplat.report import plots, runs
 from signsplat.report.collect import Results, SceneTables, bench_seconds, collect
 
 
@@ -224,16 +225,27 @@ def closeups(panel_path: Path, kp: pd.DataFrame, cams: pd.DataFrame | None,
     return written
 
 
+STUDY_PREFIXES = ("abl_", "sw_")
+
+
+def is_study_variant(variant: str) -> bool:
+    """Ablation and sweep variants (shown in their own sections, not one by one)."""
+    return variant.startswith(STUDY_PREFIXES)
+
+
 def avatar_section(res: Results, assets: Assets) -> Section:
     sec = Section("avatar", "5. Avatar metrics per part",
                   "Held-out frames (novel pose) and cameras (novel view); protocol "
                   "'bg_replaced' without test-time refinement (the paper's). Images: "
                   "ground truth | render | error map (inferno, x4). Close-ups crop hands and "
-                  "face around their 2D keypoints.")
+                  "face around their 2D keypoints. Ablation (abl_*) and sweep (sw_*) variants "
+                  "are summarised in sections 6 and 7.")
     for name, t in res.scenes.items():
         kp = pd.read_parquet(t.keypoints_2d, columns=["view", "frame", "kp", "x", "y", "score"]) \
             if t.keypoints_2d is not None and t.avatar_images else None
         for variant, m in t.avatar_metrics.items():
+            if is_study_variant(variant):
+                continue
             train_s = bench_seconds(res.benchmarks, f"train_avatar_{variant}", name)
             eval_s = bench_seconds(res.benchmarks, f"evaluate_{variant}", name)
             if train_s is None and "train_seconds" in m and len(m):
@@ -251,9 +263,10 @@ def avatar_section(res: Results, assets: Assets) -> Section:
                     sec.figures.append(Figure(assets.rel(path), f"{name} / {variant}: "
                                               f"{img.stem} {part} close-up", train_s,
                                               "train_avatar", pixelated=True))
-        if t.train_logs:
-            path = plots.training_curves(t.train_logs, assets.path(f"{name}_training_curves"))
-            total = sum(float(df["seconds"].max()) for df in t.train_logs.values()
+        logs = {v: df for v, df in t.train_logs.items() if not is_study_variant(v)}
+        if logs:
+            path = plots.training_curves(logs, assets.path(f"{name}_training_curves"))
+            total = sum(float(df["seconds"].max()) for df in logs.values()
                         if "seconds" in df and len(df))
             sec.figures.append(Figure(assets.rel(path), f"{name}: training PSNR against "
                                       "seconds, per variant", total,
@@ -265,18 +278,26 @@ def avatar_section(res: Results, assets: Assets) -> Section:
 
 def ablation_section(res: Results, assets: Assets) -> Section:
     sec = Section("ablations", "6. Ablations (paper Table 5)",
-                  "Same scene, split and seed; reduced training budget (see workflow/rules/"
-                  "report.smk). Training seconds from the Snakemake benchmark files.")
+                  "Same scene, split and seed; each variant is the demo profile plus the config's "
+                  "ablations.base with one switch flipped. Scores: held-out frames (novel pose), "
+                  "background replaced, no test-time refinement. Training seconds from the "
+                  "Snakemake benchmark files.")
     for name, t in res.scenes.items():
         if t.ablations is None or not len(t.ablations):
             continue
         a = t.ablations
-        sec.tables.append((name, table_html(a)))
+        sec.tables.append((f"{name}: {runs.ssim_finding(a)}", table_html(a)))
         if "ssim" in a and a["ssim"].notna().any():
             path = plots.bars(a.set_index("variant")["ssim"], assets.path(f"{name}_ablation"),
                               "SSIM (novel pose, full image)")
             sec.figures.append(Figure(assets.rel(path), f"{name}: SSIM per ablation",
                                       float(a["train_seconds"].sum()),
+                                      "training seconds, all ablation variants"))
+        logs = {v: t.train_logs[v] for v in a.get("avatar_variant", []) if v in t.train_logs}
+        if logs:
+            path = plots.training_curves(logs, assets.path(f"{name}_ablation_curves"))
+            sec.figures.append(Figure(assets.rel(path), f"{name}: training PSNR of the "
+                                      "ablation variants", float(a["train_seconds"].sum()),
                                       "training seconds, all ablation variants"))
     if not sec.tables:
         sec.missing = "no {scene}/ablations.parquet found (run `snakemake ablations`)"
@@ -285,9 +306,11 @@ def ablation_section(res: Results, assets: Assets) -> Section:
 
 def sweep_section(res: Results, assets: Assets, demo: str) -> Section:
     sec = Section("sweep", "7. Accuracy versus time",
-                  "Each point is one setting; seconds are wall-clock from the Snakemake "
-                  "benchmark files (training + evaluation). Red: the Pareto front (no other "
-                  "setting is both faster and better). Star: the `make demo` configuration.")
+                  "Each point is one setting (iterations, training resolution or point budget "
+                  "changed from the sweep centre); x: training wall-clock seconds from the "
+                  "Snakemake benchmark files; y: novel-pose PSNR / SSIM evaluated at the native "
+                  "image size. Red: the Pareto front (no other setting is both faster and at "
+                  "least as good). Star: the `make demo` configuration.")
     for name, t in res.scenes.items():
         if t.sweep is None or not len(t.sweep):
             continue
@@ -298,7 +321,8 @@ def sweep_section(res: Results, assets: Assets, demo: str) -> Section:
         path = plots.accuracy_vs_time(s, assets.path(f"{name}_sweep"), label="setting",
                                       highlight=demo, title=name)
         sec.figures.append(Figure(assets.rel(path), f"{name}: PSNR/SSIM against seconds",
-                                  float(s["seconds"].sum()), "all sweep settings together"))
+                                  float(s["seconds"].sum()),
+                                  "training seconds, all sweep settings together"))
         sec.tables.append((name, table_html(s)))
     if not sec.tables:
         sec.missing = "no {scene}/sweep.parquet found (run `snakemake sweep`)"
@@ -315,17 +339,30 @@ def _video_frames(video: Path, n: int, out_key: str, assets: Assets) -> list[Pat
 
 
 def stitch_section(res: Results, assets: Assets) -> Section:
-    sec = Section("stitch", "8. Stitched video")
+    sec = Section("stitch", "8. Stitched video",
+                  "English sentences signed by the trained avatar (glosses stitched by SLERP of "
+                  "the joint rotations), beside the 2D keypoint baseline; frames evenly spaced "
+                  "over each video. The gloss plan written beside each video is shown with it.")
     for path, df in res.stitch_tables:
         sec.tables.append((str(path.relative_to(res.root)), table_html(df)))
     secs = None
     sel = res.benchmarks[res.benchmarks["job"].str.startswith("stitch")]
     if len(sel):
         secs = float(sel["seconds"].sum())
-    for video in res.stitch_videos[:3]:
-        for f in _video_frames(video, 4, video.stem, assets):
-            sec.figures.append(Figure(assets.rel(f), f"{video.name}: frame {f.stem[-4:]}",
-                                      secs, "stitch rules (benchmark)"))
+    avatar = [v for v in res.stitch_videos if not v.name.endswith(".baseline2d.mp4")]
+    for video in avatar[:3]:
+        plan = video.with_name(video.name[:-len(".mp4")] + ".plan.txt")
+        if plan.is_file():
+            sec.tables.append((f"{video.name}: gloss plan",
+                               f"<pre>{escape(plan.read_text(encoding='utf-8'))}</pre>"))
+        shown = [(video, "avatar")]
+        base = video.with_name(video.name[:-len(".mp4")] + ".baseline2d.mp4")
+        if base.is_file():
+            shown.append((base, "2D baseline"))
+        for v, kind in shown:
+            for f in _video_frames(v, 4, v.stem, assets):
+                sec.figures.append(Figure(assets.rel(f), f"{v.name} ({kind}): frame "
+                                          f"{f.stem[-4:]}", secs, "stitch rules (benchmark)"))
     if not sec.tables and not sec.figures:
         sec.missing = "no stitched video or stitch_eval.parquet found (stitching did not run)"
     return sec

@@ -1,6 +1,7 @@
 """The report generator: collecting tables, the Pareto front, close-ups, ablation/sweep
 summaries and the HTML page (without a browser; see test_browser.py for the real page)."""
 
+import json
 import re
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import pandas as pd
 import pytest
 
 from signsplat.io.images import read_rgb
+from signsplat.io.tables import read_table
 from signsplat.report import plots, runs
 from signsplat.report.collect import collect, read_benchmarks
 from signsplat.report.html import closeups, write_report
@@ -55,7 +57,9 @@ def test_ablation_and_sweep_tables_use_benchmark_seconds(results_dir):
     sw = runs.sweep_table(results_dir, "tiny", {"sw_it150": {"iterations": 150},
                                                 "abl_full": {"iterations": 300},
                                                 "demo": {"iterations": 1500}})
-    assert sw.seconds.tolist() == pytest.approx([106.0, 206.0, 906.0])
+    # x axis = training seconds (benchmark), evaluation seconds kept beside them
+    assert sw.seconds.tolist() == pytest.approx([100.0, 200.0, 900.0])
+    assert sw.eval_seconds.tolist() == pytest.approx([6.0, 6.0, 6.0])
     assert sw.pareto_psnr.tolist() == [True, True, True]
     assert sw.set_index("setting").loc["abl_full", "iterations"] == 300
 
@@ -111,7 +115,46 @@ def test_report_command_writes_the_page(results_dir, tmp_path):
     assert main(["report", "--results", str(results_dir), "--out", str(out)]) == 0
     assert out.is_file() and any((out.parent / "assets").iterdir())
     sweep_out, plot = tmp_path / "sweep.parquet", tmp_path / "sweep.png"
+    point = {"swept": "iterations", "resolution": 64, "max_points": 40000}
+    settings = {"sw_it150": {"iterations": 150, **point}, "demo": {"iterations": 1500, **point}}
     assert main(["report", "sweep", "--results", str(results_dir), "--scene", "tiny",
-                 "--settings-json", '{"sw_it150": {"iterations": 150}, "demo": {}}',
+                 "--settings-json", json.dumps(settings),
                  "--out", str(sweep_out), "--plot", str(plot)]) == 0
-    assert len(pd.read_parquet(sweep_out)) == 2 and read_rgb(plot).shape[0] > 100
+    sw = read_table(sweep_out, "sweep")  # registered columns all present
+    assert sw.setting.tolist() == ["sw_it150", "demo"] and read_rgb(plot).shape[0] > 100
+    abl_out = tmp_path / "ablations.parquet"
+    on = {"regularize": True, "densify": True, "accumulate": True, "pose_dependent": True}
+    variants = {"full": {"variant": "abl_full", **on},
+                "w/o reg": {"variant": "abl_no_reg", **on, "regularize": False}}
+    assert main(["report", "ablations", "--results", str(results_dir), "--scene", "tiny",
+                 "--variants-json", json.dumps(variants), "--out", str(abl_out)]) == 0
+    a = read_table(abl_out, "ablations")
+    assert a.variant.tolist() == ["full", "w/o reg"]  # the given order, not sorted
+    assert a.regularize.tolist() == [True, False] and a.densify.all()
+
+
+def test_incomplete_sweep_settings_are_refused_by_the_table_schema(results_dir, tmp_path,
+                                                                    capsys):
+    from signsplat.cli import main
+
+    out = tmp_path / "s.parquet"
+    assert main(["report", "sweep", "--results", str(results_dir), "--scene", "tiny",
+                 "--settings-json", '{"demo": {"iterations": 1500}}',
+                 "--out", str(out), "--plot", str(tmp_path / "s.png")]) != 0
+    err = capsys.readouterr().err
+    assert str(out) in err and "max_points" in err and "swept" in err
+    assert not out.exists()
+
+
+def test_missing_variant_names_the_file(results_dir):
+    with pytest.raises(FileNotFoundError, match="abl_nothing/metrics.parquet"):
+        runs.ablation_table(results_dir, "tiny", {"full": "abl_nothing"})
+
+
+def test_ssim_finding_says_who_beats_the_full_model():
+    df = pd.DataFrame({"variant": ["full", "w/o reg", "w/o dens"], "ssim": [0.90, 0.93, 0.85]})
+    text = runs.ssim_finding(df)
+    assert "NOT best" in text and "w/o reg 0.9300 (+0.0300)" in text and "w/o dens" not in text
+    df.loc[1, "ssim"] = 0.80
+    assert "is best on SSIM (0.9000)" in runs.ssim_finding(df)
+    assert "cannot be checked" in runs.ssim_finding(df[df.variant != "full"])

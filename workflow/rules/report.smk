@@ -6,6 +6,8 @@
 # Their variants are declared in avatar.smk (ABLATIONS, SWEEP); seconds come from the
 # train_avatar / evaluate_avatar benchmark files. No science here.
 
+from signsplat.report.variants import switch_values
+
 REPORT_INPUTS = list(FINAL_OUTPUTS)
 REPORT_HTML = config["report"]["html"]
 
@@ -18,7 +20,13 @@ def variant_files(scene, variants):
 
 
 def ablation_variants_json():
-    return as_json({label: v["variant"] for label, v in ABLATIONS.items()})
+    """label -> the avatar variant and its switches (columns of ablations.parquet)."""
+    out = {}
+    for label, v in ABLATIONS.items():
+        switches = switch_values(avatar_variant_config(v["variant"]))
+        switches.pop("smplx_source")  # read from the variant's metrics (what it trained on)
+        out[label] = {"variant": v["variant"], **switches}
+    return json.dumps(out)  # not as_json: the row order (full first) is kept
 
 
 rule ablation_table:
