@@ -42,7 +42,6 @@ from ._constants import (
 )
 
 TILE = CPU_TILE  # compile-time constant: the pixel loop is exactly one 16-lane row
-HALF_ROW = TILE // 2
 
 
 def _renamed(fn, suffix: str):
@@ -834,20 +833,27 @@ def bin_fill(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, offsets, 
 # A tile lives in ONE flat buffer of per-pixel fields (field f of pixel p at f * 256 + p), so
 # LLVM sees constant distances between the fields and vectorises the 16-pixel row loops without
 # runtime alias checks. Each Gaussian of the tile's depth-sorted list is evaluated row by row
-# over the rows of its bounding box, skipping rows whose pixels are all finished and rows whose
-# slice of the alpha >= 1/255 ellipse misses the tile (both tests are conservative: they only
-# skip pairs that would be skipped anyway). The first four channels are composited inside the
-# row loop; channels beyond four (rare) in extra passes.
+# over the rows of its bounding box, skipping rows whose pixels are all finished and rows that
+# the alpha >= 1/255 ellipse does not reach (both tests are conservative: they only skip pairs
+# that would be skipped anyway). A row is always evaluated whole: one 16-lane vector (AVX-512)
+# with no scalar remainder. The first four channels are composited inside the row loop;
+# channels beyond four (rare) in extra passes.
+#
+# The row loops keep no integer counters: a sum of 64-bit integers inside the loop halves the
+# vector width (8 lanes of int64). What the forward needs per row (did a pixel finish, did the
+# Gaussian contribute) are boolean ORs; the row's finished pixels are recounted only when one
+# finished (at most 16 times per row and tile).
+#
+# The per-pair maths (sigma, alpha, the tests that skip a pair) is written once, in
+# :func:`_sigma` and :func:`_alpha`, and used by both the forward and the backward.
 
 NP = TILE * TILE
 # forward fields
 _F_T = 0      # transmittance; -T once the pixel is finished
-_F_TF = 1     # (unused)
-_F_LAST = 2   # index (relative to the tile's list) of the last Gaussian composited, -1: none
-_F_PX = 3     # pixel centre x
-_F_PY = 4     # pixel centre y
-_F_W = 5      # weight alpha * T of the current Gaussian (for channels >= 4)
-_F_ACC = 6    # accumulated channels
+_F_LAST = 1   # index (relative to the tile's list) of the last Gaussian composited, -1: none
+_F_PX = 2     # pixel centre x
+_F_W = 3      # weight alpha * T of the current Gaussian (for channels >= 4)
+_F_ACC = 4    # accumulated channels
 # backward fields
 _B_T = 0      # transmittance in front of the current Gaussian (recovered back to front)
 _B_Q = 1      # sum of w_j <v_C, c_j> behind, plus background and alpha terms
@@ -865,10 +871,51 @@ def _off(field: int) -> np.uint64:
     return np.uint64(field * NP)
 
 
-_O_T, _O_TF, _O_LAST, _O_PX, _O_PY, _O_W = (_off(f) for f in range(6))
+_O_T, _O_LAST, _O_PX, _O_W = (_off(f) for f in range(4))
 _O_ACC0, _O_ACC1, _O_ACC2, _O_ACC3 = (_off(_F_ACC + k) for k in range(4))
 _OB_T, _OB_Q, _OB_LAST, _OB_PX, _OB_PY, _OB_W, _OB_GD = (_off(f) for f in range(7))
 _OB_VC0, _OB_VC1, _OB_VC2, _OB_VC3 = (_off(_B_VC + k) for k in range(4))
+
+
+@njit(cache=True, inline="always")
+def _sigma(dx, dy, ca, cb, cc, T):
+    """sigma = 1/2 (a dx^2 + c dy^2) + b dx dy, in this order of operations everywhere (the
+    reference's), with d = mean - pixel centre."""
+    return T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+
+
+@njit(cache=True, inline="always")
+def _alpha(sig, op, T):
+    """G = exp(-sigma), opacity * G, alpha = min(MAX_ALPHA, opacity * G), and whether the pair
+    counts at all (sigma >= 0 and alpha >= ALPHA_THRESHOLD): the same constants and tests in
+    the forward and the backward."""
+    G = exp_neg(sig)
+    alr = op * G
+    al = min(T(MAX_ALPHA), alr)
+    ok = (sig >= T(0.0)) & (al >= T(ALPHA_THRESHOLD))
+    return G, alr, al, ok
+
+
+@njit(cache=True, inline="always")
+def _tile_of(tid, n_tiles, tiles_x):
+    """Camera and pixel origin (x0, y0) of the flat tile id ``tid``."""
+    c = tid // n_tiles
+    tt = tid - c * n_tiles
+    ty = tt // tiles_x
+    tx = tt - ty * tiles_x
+    return c, tx * TILE, ty * TILE
+
+
+@njit(cache=True, inline="always")
+def _gaussian(fi, means2d, conics, opacities, gparams, colors, colors_per_camera, N, DI, T):
+    """What the compositing loops read of the flat (camera, Gaussian) entry ``fi``: mean,
+    conic, opacity, the row-test parameters of :func:`_level`, the colour row index and its
+    first four channels (0 beyond D)."""
+    ci = fi if colors_per_camera else fi % N
+    return (means2d[fi, 0], means2d[fi, 1], conics[fi, 0], conics[fi, 1], conics[fi, 2],
+            opacities[fi], gparams[fi, 0], gparams[fi, 1], gparams[fi, 2], ci,
+            colors[ci, 0], colors[ci, 1] if DI > 1 else T(0.0),
+            colors[ci, 2] if DI > 2 else T(0.0), colors[ci, 3] if DI > 3 else T(0.0))
 
 
 @njit(cache=True, inline="always")
@@ -887,30 +934,22 @@ def _row_range(my, ry, y0, height):
 
 
 @njit(cache=True, inline="always")
-def _row_lanes(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
-    """Lanes [a, b) of the tile row at vertical offset ``dy = my - py`` to evaluate: the halves
-    (8 pixels) of the row that the ellipse ``sigma <= level`` can reach (1 px margin), clipped
-    to the row length ``xw``; a >= b when the row can be skipped."""
+def _row_reached(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
+    """Whether the ellipse ``sigma <= level`` reaches the tile row at vertical offset
+    ``dy = my - py`` (row length ``xw``), with a 1 px margin: False only where every pixel of
+    the row has alpha < 1/255."""
     smin = T(0.5) * dy * dy * s_c
     if not (smin <= level):
-        return 0, 0
+        return False
     h = math.sqrt(T(2.0) * (level - smin) * inv_ca) + T(1.0)
     centre = mx + cb * dy * inv_ca - T(x0)  # tile-relative; pixel i has its centre at i + 0.5
-    lo = centre - h
-    hi = centre + h
-    a = 0 if lo <= T(HALF_ROW) - T(0.5) else HALF_ROW
-    b = TILE if hi >= T(HALF_ROW) + T(0.5) else HALF_ROW
-    if hi < T(0.5) or lo > T(TILE) - T(0.5):
-        return 0, 0
-    if b > xw:
-        b = xw
-    return a, b
+    return centre + h >= T(0.5) and centre - h <= T(xw) - T(0.5)
 
 
 @njit(cache=True, inline="always")
 def _level(op, ca, cb, cc, T):
     """sigma level of alpha = 1/255 (slightly enlarged), 1 / a and the Schur complement
-    c - b^2 / a used by :func:`_row_misses`."""
+    c - b^2 / a used by :func:`_row_reached`."""
     level = math.log(max(op, T(ALPHA_THRESHOLD)) / T(ALPHA_THRESHOLD)) * T(1.001) + T(1e-3)
     inv_ca = T(1.0) / ca
     s_c = max(cc - cb * cb * inv_ca, T(0.0))
@@ -953,18 +992,11 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     DI = min(D, 4)
     n_tiles = tiles_x * tiles_y
     C = out_color.shape[0]
-    thr = T(ALPHA_THRESHOLD)
-    amax = T(MAX_ALPHA)
     tthr = T(TRANSMITTANCE_THRESHOLD)
     nf = _F_ACC + max(D, 4)
     for k_ in prange(C * n_tiles):
         tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
-        c = tid // n_tiles
-        tt = tid - c * n_tiles
-        ty = tt // tiles_x
-        tx = tt - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
+        c, x0, y0 = _tile_of(tid, n_tiles, tiles_x)
         xw = min(TILE, width - x0)  # row length (a runtime trip count: vectorised, not unrolled)
         buf = np.zeros(nf * NP, dtype=T)
         rowdone = np.zeros(TILE, dtype=np.int64)
@@ -973,7 +1005,6 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             for x in range(TILE):
                 p = y * TILE + x
                 buf[_F_PX * NP + p] = T(x0 + x) + T(0.5)
-                buf[_F_PY * NP + p] = T(y0 + y) + T(0.5)
                 buf[_F_LAST * NP + p] = T(-1.0)
                 if y0 + y >= height or x0 + x >= width:  # outside the image: finished
                     rowdone[y] += 1
@@ -991,42 +1022,29 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             lo, hi = _row_range(float(means2d[fi, 1]), radii[fi, 1], y0, height)
             if lo >= hi:
                 continue
-            mx = means2d[fi, 0]
-            my = means2d[fi, 1]
-            ca = conics[fi, 0]
-            cb = conics[fi, 1]
-            cc = conics[fi, 2]
-            op = opacities[fi]
-            level = gparams[fi, 0]
-            inv_ca = gparams[fi, 1]
-            s_c = gparams[fi, 2]
-            ci = fi if colors_per_camera else fi % N
-            c0 = colors[ci, 0]
-            c1 = colors[ci, 1] if DI > 1 else T(0.0)
-            c2 = colors[ci, 2] if DI > 2 else T(0.0)
-            c3 = colors[ci, 3] if DI > 3 else T(0.0)
+            (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
+             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
+                                         colors_per_camera, N, DI, T)
             jr = T(j - start)
             rlo = TILE
             rhi = 0
             for y in range(lo, hi):
                 if rowdone[y] >= TILE:
                     continue
-                la, lb = _row_lanes(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
-                                    level, T)
-                if la >= lb:
+                dy = my - (T(y0 + y) + T(0.5))  # one value per row: the same float as per pixel
+                if not _row_reached(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
                     continue
-                npairs += lb - la
-                nterm = 0
-                ncontrib = 0
-                pb = np.uint64(y * TILE + la)
-                pe = np.uint64(y * TILE + lb)
+                npairs += xw
+                anyterm = False
+                anycontrib = False
+                pb = np.uint64(y * TILE)
+                pe = np.uint64(y * TILE + xw)
                 for p in range(pb, pe):
                     dx = mx - buf[_O_PX + p]
-                    dy = my - buf[_O_PY + p]
-                    sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    al = min(amax, op * exp_neg(sig))
+                    sig = _sigma(dx, dy, ca, cb, cc, T)
+                    _G, _alr, al, ok = _alpha(sig, op, T)
                     t = buf[_O_T + p]
-                    valid = (sig >= T(0.0)) & (al >= thr) & (t > T(0.0))
+                    valid = ok & (t > T(0.0))
                     nt = t * (T(1.0) - al)
                     term = valid & (nt <= tthr)
                     contrib = valid & (nt > tthr)
@@ -1044,18 +1062,21 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                     buf[_O_ACC0 + p] += w * c0
                     buf[_O_ACC1 + p] += w * c1
                     buf[_O_ACC2 + p] += w * c2
-                    if DI > 3:
-                        buf[_O_ACC3 + p] += w * c3
-                    nterm += np.int64(term)
-                    ncontrib += np.int64(contrib)
+                    buf[_O_ACC3 + p] += w * c3  # c3 = 0 below four channels: no mask
+                    anyterm |= term
+                    anycontrib |= contrib
                 for k in range(4, D):
                     ck = colors[ci, k]
-                    ok = np.uint64((_F_ACC + k) * NP)
+                    ok_ = np.uint64((_F_ACC + k) * NP)
                     for p in range(pb, pe):
-                        buf[ok + p] += buf[_O_W + p] * ck
-                rowdone[y] += nterm
-                ndone += nterm
-                if ncontrib > 0:
+                        buf[ok_ + p] += buf[_O_W + p] * ck
+                if anyterm:  # recount the row's finished pixels
+                    nd = 0
+                    for x in range(TILE):
+                        nd += buf[_F_T * NP + y * TILE + x] <= T(0.0)
+                    ndone += nd - rowdone[y]
+                    rowdone[y] = nd
+                if anycontrib:
                     rlo = min(rlo, y)
                     rhi = y + 1
             isect_rows[j, 0] = np.uint8(rlo)
@@ -1097,7 +1118,6 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     DI = min(D, 4)
     n_tiles = tiles_x * tiles_y
     C = v_color.shape[0]
-    thr = T(ALPHA_THRESHOLD)
     amax = T(MAX_ALPHA)
     nf = _B_VC + max(D, 4)
     for k_ in prange(C * n_tiles):
@@ -1107,12 +1127,7 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
         end = tile_offsets[tid + 1]
         if end <= start:
             continue
-        c = tid // n_tiles
-        tt = tid - c * n_tiles
-        ty = tt // tiles_x
-        tx = tt - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
+        c, x0, y0 = _tile_of(tid, n_tiles, tiles_x)
         ymax = min(TILE, height - y0)
         xmax = min(TILE, width - x0)
         xw = xmax  # row length (a runtime trip count: vectorised, not unrolled)
@@ -1154,20 +1169,9 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             if lo >= hi:
                 continue
             fi = flat_ids[j]
-            mx = means2d[fi, 0]
-            my = means2d[fi, 1]
-            ca = conics[fi, 0]
-            cb = conics[fi, 1]
-            cc = conics[fi, 2]
-            op = opacities[fi]
-            level = gparams[fi, 0]
-            inv_ca = gparams[fi, 1]
-            s_c = gparams[fi, 2]
-            ci = fi if colors_per_camera else fi % N
-            c0 = colors[ci, 0]
-            c1 = colors[ci, 1] if DI > 1 else T(0.0)
-            c2 = colors[ci, 2] if DI > 2 else T(0.0)
-            c3 = colors[ci, 3] if DI > 3 else T(0.0)
+            (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
+             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
+                                         colors_per_camera, N, DI, T)
             jr = T(j - start)
             g_mx = T(0.0)
             g_my = T(0.0)
@@ -1187,9 +1191,8 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             for y in range(lo, hi):
                 if rowmax[y] < j:
                     continue
-                la, lb = _row_lanes(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
-                                    level, T)
-                if la >= lb:
+                if not _row_reached(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
+                                    level, T):
                     continue
                 touched = True
                 # whole rows: LLVM vectorises this loop 16 lanes wide, so a half row would run
@@ -1207,11 +1210,9 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                 for p in range(pb, pe):
                     dx = mx - buf[_OB_PX + p]
                     dy = my - buf[_OB_PY + p]
-                    sig = T(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    G = exp_neg(sig)
-                    alr = op * G
-                    al = min(amax, alr)
-                    valid = (buf[_OB_LAST + p] >= jr) & (sig >= T(0.0)) & (al >= thr)
+                    sig = _sigma(dx, dy, ca, cb, cc, T)
+                    G, alr, al, ok = _alpha(sig, op, T)
+                    valid = (buf[_OB_LAST + p] >= jr) & ok
                     ra = T(1.0) / (T(1.0) - al)
                     t = buf[_OB_T + p]
                     ti = t * ra
