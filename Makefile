@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium bench-rasterizer clean-results
+.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep snakemake-report
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -41,3 +41,17 @@ bench-rasterizer: $(STAMP)
 
 clean-results:
 	rm -rf results .snakemake
+
+# Studies (not part of `make demo`): ablations (paper Table 5) and accuracy versus time; the
+# second snakemake call rewrites reports/index.html with their tables.
+ablations: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) ablations
+	$(BIN)/snakemake --cores $(JOBS)
+
+sweep: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) sweep
+	$(BIN)/snakemake --cores $(JOBS)
+
+# Snakemake's own report (captions in workflow/report/) over the finished outputs.
+snakemake-report: $(STAMP)
+	$(BIN)/snakemake --report reports/snakemake.html

@@ -84,9 +84,17 @@ rule sweep:
         expand(rules.sweep_table.output.table, scene=SWEEP_SCENE),
 
 
+def report_inputs(wildcards):
+    """Everything in `all`, plus the study tables once they exist: a later run of `all` after
+    `snakemake ablations` or `snakemake sweep` rewrites the report with them."""
+    study = expand(rules.ablation_table.output[0], scene=ABLATION_SCENE)
+    study += expand(rules.sweep_table.output.table, scene=SWEEP_SCENE)
+    return REPORT_INPUTS + [f for f in study if os.path.exists(f)]
+
+
 rule report:
     input:
-        REPORT_INPUTS,
+        report_inputs,
     output:
         report(REPORT_HTML, caption="../report/index.rst", category="0. Overview"),
     log:
