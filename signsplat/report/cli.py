@@ -29,23 +29,28 @@ def _html(argv: list[str]) -> int:
                    help="scene YAMLs (effects listed when sim/spec.json is absent)")
     p.add_argument("--demo", default="demo", help="setting highlighted on the sweep plot")
     p.add_argument("--title", default="SignSplat report")
+    p.add_argument("--tables", default=None,
+                   help="also write every table of the report as TSV files in this folder")
     a = p.parse_args(argv)
-    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title)
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables)
     print(f"report: {Path(out).resolve()}")
     return 0
 
 
 def _ablations(argv: list[str]) -> int:
-    from signsplat.report.runs import ablation_table, ssim_finding, write_parquet
+    from signsplat.report.runs import ablation_table, ssim_finding, write_parquet, write_tsv
 
     p = argparse.ArgumentParser(prog="signsplat report ablations")
     p.add_argument("--results", required=True)
     p.add_argument("--scene", required=True)
     p.add_argument("--variants-json", required=True, help='{"label": "avatar variant", ...}')
     p.add_argument("--out", required=True)
+    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
     write_parquet(df, Path(a.out), "ablations")
+    if a.tsv:
+        write_tsv(df, Path(a.tsv))
     print(df.to_string(index=False))
     print(ssim_finding(df))
     return 0
@@ -53,7 +58,7 @@ def _ablations(argv: list[str]) -> int:
 
 def _sweep(argv: list[str]) -> int:
     from signsplat.report.plots import accuracy_vs_time
-    from signsplat.report.runs import sweep_table, write_parquet
+    from signsplat.report.runs import sweep_table, write_parquet, write_tsv
 
     p = argparse.ArgumentParser(prog="signsplat report sweep")
     p.add_argument("--results", required=True)
@@ -64,9 +69,12 @@ def _sweep(argv: list[str]) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--plot", required=True)
     p.add_argument("--demo", default="demo")
+    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
     write_parquet(df, Path(a.out), "sweep")
+    if a.tsv:
+        write_tsv(df, Path(a.tsv))
     accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)
     print(df.to_string(index=False))
     return 0

@@ -43,6 +43,13 @@ class Section:
     missing: str = ""  # non-empty: the stage did not run, and why it is absent
     tables: list[tuple[str, str]] = field(default_factory=list)  # (caption, html)
     figures: list[Figure] = field(default_factory=list)
+    frames: list[tuple[str, pd.DataFrame]] = field(default_factory=list)  # (caption, table)
+
+    def add_table(self, caption: str, df: pd.DataFrame | None) -> None:
+        """A table shown as HTML and kept for the TSV copies (``write_report(tables_dir=)``)."""
+        self.tables.append((caption, table_html(df)))
+        if df is not None and len(df):
+            self.frames.append((caption, df))
 
 
 class Assets:
@@ -112,7 +119,7 @@ def scene_section(res: Results, assets: Assets) -> Section:
     if not rows:
         sec.missing = "no simulated or extracted frames found (stage 1 did not run)"
     else:
-        sec.tables.append(("Sequences", table_html(pd.DataFrame(rows))))
+        sec.add_table("Sequences", pd.DataFrame(rows))
     return sec
 
 
@@ -124,9 +131,9 @@ def perception_section(res: Results) -> Section:
         if t.perception_eval is not None:
             pivot = t.perception_eval.pivot_table(index="part", columns="metric",
                                                   values="value", aggfunc="first").reset_index()
-            sec.tables.append((f"{name}: accuracy and speed", table_html(pivot)))
+            sec.add_table(f"{name}: accuracy and speed", pivot)
         if t.perception_timings is not None:
-            sec.tables.append((f"{name}: timings", table_html(t.perception_timings)))
+            sec.add_table(f"{name}: timings", t.perception_timings)
     if not sec.tables:
         sec.missing = "no perception/eval.parquet found (perception stages did not run)"
     return sec
@@ -142,8 +149,7 @@ def fit_section(res: Results, assets: Assets) -> Section:
         fe = t.fit_eval
         secs = float(fe["seconds_total"].iloc[0]) if len(fe) else None
         cols = [c for c in ("mode", "keypoints", "metric", "part", "value", "unit") if c in fe]
-        sec.tables.append((f"{name}: fit accuracy (fit took {_fmt_seconds(secs)})",
-                           table_html(fe[cols])))
+        sec.add_table(f"{name}: fit accuracy (fit took {_fmt_seconds(secs)})", fe[cols])
         bench = bench_seconds(res.benchmarks, "fit_smplx", name)
         for img in t.fit_overlays:
             sec.figures.append(Figure(assets.copy(img), f"{name}: {img.stem}",
@@ -161,7 +167,7 @@ def colmap_section(res: Results) -> Section:
             "status"]
     for name, t in res.scenes.items():
         if t.colmap is not None:
-            sec.tables.append((name, table_html(t.colmap[[c for c in keep if c in t.colmap]])))
+            sec.add_table(name, t.colmap[[c for c in keep if c in t.colmap]])
     if not sec.tables:
         sec.missing = "no colmap/colmap_compare.parquet found (multi-view scenes only)"
     return sec
@@ -250,8 +256,8 @@ def avatar_section(res: Results, assets: Assets) -> Section:
             eval_s = bench_seconds(res.benchmarks, f"evaluate_{variant}", name)
             if train_s is None and "train_seconds" in m and len(m):
                 train_s = float(m["train_seconds"].iloc[0])
-            sec.tables.append((f"{name} / {variant}: training {_fmt_seconds(train_s)}, "
-                               f"evaluation {_fmt_seconds(eval_s)}", table_html(_avatar_summary(m))))
+            sec.add_table(f"{name} / {variant}: training {_fmt_seconds(train_s)}, "
+                          f"evaluation {_fmt_seconds(eval_s)}", _avatar_summary(m))
             for img in t.avatar_images.get(variant, []):
                 sec.figures.append(Figure(assets.copy(img), f"{name} / {variant}: {img.stem} "
                                           "(ground truth | render | error)", train_s,
@@ -286,7 +292,7 @@ def ablation_section(res: Results, assets: Assets) -> Section:
         if t.ablations is None or not len(t.ablations):
             continue
         a = t.ablations
-        sec.tables.append((f"{name}: {runs.ssim_finding(a)}", table_html(a)))
+        sec.add_table(f"{name}: {runs.ssim_finding(a)}", a)
         if "ssim" in a and a["ssim"].notna().any():
             path = plots.bars(a.set_index("variant")["ssim"], assets.path(f"{name}_ablation"),
                               "SSIM (novel pose, full image)")
@@ -323,7 +329,7 @@ def sweep_section(res: Results, assets: Assets, demo: str) -> Section:
         sec.figures.append(Figure(assets.rel(path), f"{name}: PSNR/SSIM against seconds",
                                   float(s["seconds"].sum()),
                                   "training seconds, all sweep settings together"))
-        sec.tables.append((name, table_html(s)))
+        sec.add_table(name, s)
     if not sec.tables:
         sec.missing = "no {scene}/sweep.parquet found (run `snakemake sweep`)"
     return sec
@@ -344,7 +350,7 @@ def stitch_section(res: Results, assets: Assets) -> Section:
                   "the joint rotations), beside the 2D keypoint baseline; frames evenly spaced "
                   "over each video. The gloss plan written beside each video is shown with it.")
     for path, df in res.stitch_tables:
-        sec.tables.append((str(path.relative_to(res.root)), table_html(df)))
+        sec.add_table(str(path.relative_to(res.root)), df)
     secs = None
     sel = res.benchmarks[res.benchmarks["job"].str.startswith("stitch")]
     if len(sel):
@@ -378,8 +384,8 @@ def runtime_section(res: Results, assets: Assets) -> Section:
     path = plots.rule_times(b, assets.path("rule_times"))
     sec.figures.append(Figure(assets.rel(path), "seconds per job (longest 30)",
                               float(b["seconds"].sum()), "sum over all jobs"))
-    sec.tables.append(("Jobs", table_html(b.drop(columns=["file"]).sort_values(
-        "seconds", ascending=False))))
+    sec.add_table("Jobs", b.drop(columns=["file"]).sort_values(
+        "seconds", ascending=False))
     return sec
 
 
@@ -429,12 +435,34 @@ def build_sections(res: Results, report_dir: Path, demo: str = "demo") -> list[S
             runtime_section(res, assets)]
 
 
+def write_tables(sections: list[Section], folder: Path) -> list[Path]:
+    """Every table of the report as ``{section}_{n:02d}_{caption}.tsv`` in ``folder`` (what
+    ``snakemake --report`` shows as tables); files of an earlier report are replaced."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("*.tsv"):
+        old.unlink()
+    written = []
+    for sec in sections:
+        for n, (caption, df) in enumerate(sec.frames):
+            slug = re.sub(r"[^A-Za-z0-9]+", "_", caption).strip("_")[:60]
+            path = folder / f"{sec.id}_{n:02d}_{slug}.tsv"
+            with atomic_path(path) as tmp:
+                df.to_csv(tmp, sep="\t", index=False)
+            written.append(path)
+    return written
+
+
 def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
-                 demo: str = "demo", title: str = "SignSplat report") -> Path:
-    """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder)."""
+                 demo: str = "demo", title: str = "SignSplat report",
+                 tables_dir: str | Path | None = None) -> Path:
+    """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
+    ``tables_dir``, every table also as a TSV file there."""
     out = Path(out)
     res = collect(results, repo_scenes)
     sections = build_sections(res, out.parent, demo)
+    if tables_dir is not None:
+        write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),
                            scenes=list(res.scenes), sections=sections, fmt=_fmt_seconds)
     with atomic_path(out) as tmp:

@@ -160,3 +160,11 @@ def write_parquet(df: pd.DataFrame, path: Path, table: str | None = None) -> Pat
     with atomic_path(path) as tmp:
         df.to_parquet(tmp, index=False)
     return path
+
+
+def write_tsv(df: pd.DataFrame, path: Path) -> Path:
+    """``df`` as a tab-separated text table, atomically (for ``snakemake --report``)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        df.to_csv(tmp, sep="\t", index=False)
+    return path

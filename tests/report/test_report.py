@@ -158,3 +158,18 @@ def test_ssim_finding_says_who_beats_the_full_model():
     df.loc[1, "ssim"] = 0.80
     assert "is best on SSIM (0.9000)" in runs.ssim_finding(df)
     assert "cannot be checked" in runs.ssim_finding(df[df.variant != "full"])
+
+
+def test_report_tables_are_also_written_as_tsv(results_dir, tmp_path):
+    tables = tmp_path / "tables"
+    tables.mkdir()
+    (tables / "stale.tsv").write_text("old\n")  # a file of an earlier report goes away
+    page = write_report(results_dir, tmp_path / "index.html", tables_dir=tables).read_text()
+    files = sorted(p.name for p in tables.glob("*.tsv"))
+    assert "stale.tsv" not in files
+    assert len(files) == page.count("<table")  # one TSV per table shown
+    abl = [f for f in files if f.startswith("ablations_")]
+    assert len(abl) == 1
+    df = pd.read_csv(tables / abl[0], sep="\t")
+    assert df.variant.tolist() == ["full", "w/o regularisation"]
+    assert df.psnr.iloc[0] == pytest.approx(22.0)

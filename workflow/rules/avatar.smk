@@ -152,9 +152,7 @@ rule evaluate_avatar:
         unpack(avatar_inputs),
         checkpoint=rules.train_avatar.output.checkpoint,
     output:
-        metrics=report(f"{RESULTS}/{{scene}}/eval/{{variant}}/metrics.parquet",
-                       caption="../report/avatar_metrics.rst", category="5. Avatar",
-                       subcategory="{variant}"),
+        metrics=f"{RESULTS}/{{scene}}/eval/{{variant}}/metrics.parquet",
         images=report(directory(f"{RESULTS}/{{scene}}/eval/{{variant}}/images"),
                       patterns=["{name}.png"], caption="../report/avatar_images.rst",
                       category="5. Avatar", subcategory="{variant}"),

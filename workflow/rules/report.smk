@@ -10,6 +10,7 @@ from signsplat.report.variants import switch_values
 
 REPORT_INPUTS = list(FINAL_OUTPUTS)
 REPORT_HTML = config["report"]["html"]
+REPORT_TABLES = os.path.join(os.path.dirname(REPORT_HTML), "tables")  # TSV copies
 
 
 def variant_files(scene, variants):
@@ -33,8 +34,9 @@ rule ablation_table:
     input:
         **variant_files(ABLATION_SCENE, sorted({v["variant"] for v in ABLATIONS.values()})),
     output:
-        report(f"{RESULTS}/{{scene}}/ablations.parquet", caption="../report/ablations.rst",
-               category="6. Ablations"),
+        table=f"{RESULTS}/{{scene}}/ablations.parquet",
+        tsv=report(f"{RESULTS}/{{scene}}/ablations.tsv", caption="../report/ablations.rst",
+                   category="6. Ablations"),
     params:
         variants=ablation_variants_json(),
     log:
@@ -47,15 +49,17 @@ rule ablation_table:
         runtime=5,
     shell:
         "{PY} -m signsplat report ablations --results {RESULTS} --scene {wildcards.scene}"
-        " --variants-json {params.variants:q} --out {output:q} > {log} 2>&1"
+        " --variants-json {params.variants:q} --out {output.table:q} --tsv {output.tsv:q}"
+        " > {log} 2>&1"
 
 
 rule sweep_table:
     input:
         **variant_files(SWEEP_SCENE, list(SWEEP)),
     output:
-        table=report(f"{RESULTS}/{{scene}}/sweep.parquet", caption="../report/sweep_table.rst",
-                     category="7. Accuracy versus time"),
+        table=f"{RESULTS}/{{scene}}/sweep.parquet",
+        tsv=report(f"{RESULTS}/{{scene}}/sweep.tsv", caption="../report/sweep_table.rst",
+                   category="7. Accuracy versus time"),
         plot=report(f"{RESULTS}/{{scene}}/sweep.png", caption="../report/sweep.rst",
                     category="7. Accuracy versus time"),
     params:
@@ -71,12 +75,12 @@ rule sweep_table:
     shell:
         "{PY} -m signsplat report sweep --results {RESULTS} --scene {wildcards.scene}"
         " --settings-json {params.settings:q} --out {output.table:q} --plot {output.plot:q}"
-        " --demo demo > {log} 2>&1"
+        " --tsv {output.tsv:q} --demo demo > {log} 2>&1"
 
 
 rule ablations:
     input:
-        expand(rules.ablation_table.output[0], scene=ABLATION_SCENE),
+        expand(rules.ablation_table.output.table, scene=ABLATION_SCENE),
 
 
 rule sweep:
@@ -87,7 +91,7 @@ rule sweep:
 def report_inputs(wildcards):
     """Everything in `all`, plus the study tables once they exist: a later run of `all` after
     `snakemake ablations` or `snakemake sweep` rewrites the report with them."""
-    study = expand(rules.ablation_table.output[0], scene=ABLATION_SCENE)
+    study = expand(rules.ablation_table.output.table, scene=ABLATION_SCENE)
     study += expand(rules.sweep_table.output.table, scene=SWEEP_SCENE)
     return REPORT_INPUTS + [f for f in study if os.path.exists(f)]
 
@@ -96,7 +100,9 @@ rule report:
     input:
         report_inputs,
     output:
-        report(REPORT_HTML, caption="../report/index.rst", category="0. Overview"),
+        html=report(REPORT_HTML, caption="../report/index.rst", category="0. Overview"),
+        tables=report(directory(REPORT_TABLES), patterns=["{name}.tsv"],
+                      caption="../report/tables.rst", category="9. Tables of the report"),
     log:
         f"{RESULTS}/_logs/report.log",
     benchmark:
@@ -106,7 +112,8 @@ rule report:
         mem_mb=2000,
         runtime=10,
     shell:
-        "{PY} -m signsplat report html --results {RESULTS} --out {output:q} > {log} 2>&1"
+        "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
+        " --tables {output.tables:q} > {log} 2>&1"
 
 
-FINAL_OUTPUTS.append(rules.report.output[0])
+FINAL_OUTPUTS.append(rules.report.output.html)
