@@ -18,6 +18,7 @@ from torch import Tensor
 
 from . import _kernels as K
 from ._constants import CPU_TILE
+from ._outputs import finish, mode_backgrounds
 from .projection import camera_centers
 
 
@@ -264,27 +265,12 @@ def rasterize(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, c
             if feats.dim() == 3 and feats.stride(0) == 0:
                 feats = feats.contiguous()
             feats = torch.cat([feats, depths[..., None]], dim=-1)
-    bg = None
-    if backgrounds is not None:
-        if render_mode in ("D", "ED"):
-            bg = torch.zeros(C, 1, dtype=means.dtype)
-        elif render_mode in ("RGB+D", "RGB+ED"):
-            bg = torch.cat([backgrounds, torch.zeros_like(backgrounds[:, :1])], dim=-1)
-        else:
-            bg = backgrounds
+    bg = mode_backgrounds(backgrounds, render_mode, C, means)
     info: dict[str, Any] = {}
     render_colors, render_alphas = _Rasterize.apply(means2d, conics, feats, opac, bg, radii,
                                                     depths, width, height, absgrad, info)
-    if render_mode in ("ED", "RGB+ED"):
-        render_colors = torch.cat([render_colors[..., :-1],
-                                   render_colors[..., -1:] / render_alphas.clamp(min=1e-10)], -1)
-    meta = {
-        "camera_ids": None, "gaussian_ids": None, "radii": radii, "means2d": means2d,
-        "depths": depths, "conics": conics, "opacities": opac,
-        "compensations": comps if antialiased else None,
-        "width": width, "height": height, "tile_size": tile_size, "n_cameras": C,
-        "tile_width": math.ceil(width / tile_size), "tile_height": math.ceil(height / tile_size),
-        "n_isects": info.get("n_isects", 0), "n_pairs": info.get("pairs_forward", 0),
-        "backend": "cpu",
-    }
-    return render_colors, render_alphas, meta
+    return finish(render_colors, render_alphas, render_mode, radii=radii, means2d=means2d,
+                  depths=depths, conics=conics, opacities=opac,
+                  compensations=comps if antialiased else None, width=width, height=height,
+                  tile_size=tile_size, n_isects=info.get("n_isects", 0),
+                  n_pairs=info.get("pairs_forward", 0), backend="cpu")

@@ -5,9 +5,10 @@ and is generic over the float type: the caller passes ``T`` = ``np.float32`` or 
 and every literal is written ``T(...)`` so float32 inputs are computed in float32 throughout
 (Numba would otherwise promote ``float32 * 0.5`` to float64).
 
-The formulas, and the order of the floating-point operations in the projection, are the same
-as in :mod:`.projection` (the PyTorch reference), so projected means agree bit for bit; this
-matters because a one-ulp shift of a sharp Gaussian's centre changes pixels by ~1e-4.
+The projection formulas are :mod:`._ewa`'s, the same source the PyTorch reference
+(:mod:`.projection`) runs on tensors, so the floating-point operations and their order are the
+same and projected means agree bit for bit; this matters because a one-ulp shift of a sharp
+Gaussian's centre changes pixels by ~1e-4.
 
 Parallel layout (``prange``):
 - projection / SH: over (camera, Gaussian) or over Gaussians (backward, to reduce without races);
@@ -28,12 +29,12 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
+from . import _ewa
 from . import _numba_setup  # noqa: F401  (cache directory, before anything is compiled)
 from ._constants import (
     ALPHA_THRESHOLD,
     CPU_TILE,
     DIR_EPS2,
-    FOV_CLAMP_MARGIN,
     MAX_ALPHA,
     MAX_EXTENT_SIGMA,
     MAX_RADIUS,
@@ -149,10 +150,22 @@ def exp_neg_array(s, out):
 
 
 # ----------------------------------------------------------------------------- projection helpers
+# The projection formulas live in :mod:`._ewa`, shared with the PyTorch reference. These helpers
+# are ordinary compiled functions (LLVM inlines them): inlined at the Numba IR level, their
+# nested tuples trip the parfor array analysis of the parallel kernels.
+_rotmat = njit(cache=True)(_ewa.rotmat)
+_world_cov = njit(cache=True)(_ewa.world_cov)
+_cam_point = njit(cache=True)(_ewa.cam_point)
+_cam_cov = njit(cache=True)(_ewa.cam_cov)
+_fov_limits = njit(cache=True)(_ewa.fov_limits)
+_jacobian = njit(cache=True)(_ewa.jacobian)
+_cov2d = njit(cache=True)(_ewa.cov2d)
+
+
 @njit(cache=True, inline="always")
 def _quat_rotmat(qw, qx, qy, qz, T):
-    """Safe normalisation and rotation matrix (row-major r00..r22), plus normalised quaternion,
-    the inverse norm and whether the clamp was active."""
+    """Safe normalisation and rotation matrix (flat tuple r00..r22), plus the normalised
+    quaternion, the inverse norm and whether the clamp was active."""
     n2 = qw * qw + qx * qx + qy * qy + qz * qz
     clamped = not (n2 > T(QUAT_EPS2))
     inv = T(1.0) / math.sqrt(n2 if not clamped else T(QUAT_EPS2))
@@ -160,16 +173,47 @@ def _quat_rotmat(qw, qx, qy, qz, T):
     x = qx * inv
     y = qy * inv
     z = qz * inv
-    r00 = T(1.0) - T(2.0) * (y * y + z * z)
-    r01 = T(2.0) * (x * y - w * z)
-    r02 = T(2.0) * (x * z + w * y)
-    r10 = T(2.0) * (x * y + w * z)
-    r11 = T(1.0) - T(2.0) * (x * x + z * z)
-    r12 = T(2.0) * (y * z - w * x)
-    r20 = T(2.0) * (x * z - w * y)
-    r21 = T(2.0) * (y * z + w * x)
-    r22 = T(1.0) - T(2.0) * (x * x + y * y)
-    return r00, r01, r02, r10, r11, r12, r20, r21, r22, w, x, y, z, inv, clamped
+    return _rotmat(w, x, y, z, T), w, x, y, z, inv, clamped
+
+
+@njit(cache=True, inline="always")
+def _view_rows(V):
+    """Rows 0-2 of a 4x4 world-to-camera matrix as the flat tuple of :mod:`._ewa`."""
+    return (V[0, 0], V[0, 1], V[0, 2], V[0, 3], V[1, 0], V[1, 1], V[1, 2], V[1, 3],
+            V[2, 0], V[2, 1], V[2, 2], V[2, 3])
+
+
+@njit(cache=True, inline="always")
+def _gaussian_cov(quats, scales, g, T):
+    """Rotation (flat), normalised quaternion and its inverse norm and clamp flag,
+    ``M = R diag(s)`` and the world covariance ``S`` of Gaussian ``g``."""
+    r, w, x, y, z, qinv, qcl = _quat_rotmat(quats[g, 0], quats[g, 1], quats[g, 2],
+                                             quats[g, 3], T)
+    M, S = _world_cov(r, scales[g, 0], scales[g, 1], scales[g, 2])
+    return r, (w, x, y, z, qinv, qcl), M, S
+
+
+@njit(cache=True, inline="always")
+def _project_cam(V, K, m0, m1, m2, S, Wf, Hf, T):
+    """EWA projection of one Gaussian (mean m, world covariance S) into the camera with rows
+    ``V`` (flat tuple) and intrinsics ``K``: what :func:`project_fwd` and :func:`project_bwd`
+    compute alike. Returns the camera-space point, ``u = x/z``, ``v = y/z``, (fx, fy, cx, cy),
+    the clamp limits, the camera covariance, the Jacobian, ``J Sc`` and the 2D covariance."""
+    px, py, pz = _cam_point(V, m0, m1, m2)
+    Sc = _cam_cov(V, S)
+    fx = K[0, 0]
+    fy = K[1, 1]
+    cx = K[0, 2]
+    cy = K[1, 2]
+    u = px / pz
+    v = py / pz
+    lim = _fov_limits(fx, fy, cx, cy, Wf, Hf, T)
+    lxp, lxn, lyp, lyn = lim
+    uc = min(max(u, -lxn), lxp)
+    vc = min(max(v, -lyn), lyp)
+    J = _jacobian(fx, fy, pz, uc, vc)
+    JS, cov = _cov2d(J, Sc)
+    return (px, py, pz), u, v, (fx, fy, cx, cy), lim, Sc, J, JS, cov
 
 
 @kernel
@@ -198,82 +242,18 @@ def project_fwd(means, quats, scales, opacities, viewmats, Ks, width, height, ep
         conics[idx, 1] = T(0.0)
         conics[idx, 2] = T(0.0)
         comps[idx] = T(1.0)
-        V = viewmats[c]
         m0 = means[g, 0]
         m1 = means[g, 1]
         m2 = means[g, 2]
-        px = V[0, 0] * m0 + V[0, 1] * m1 + V[0, 2] * m2 + V[0, 3]
-        py = V[1, 0] * m0 + V[1, 1] * m1 + V[1, 2] * m2 + V[1, 3]
-        pz = V[2, 0] * m0 + V[2, 1] * m1 + V[2, 2] * m2 + V[2, 3]
+        V = _view_rows(viewmats[c])
+        pz = _cam_point(V, m0, m1, m2)[2]
         if not (pz >= nearf and pz <= farf):
             continue
-        (r00, r01, r02, r10, r11, r12, r20, r21, r22,
-         _w, _x, _y, _z, _inv, _cl) = _quat_rotmat(quats[g, 0], quats[g, 1], quats[g, 2],
-                                                  quats[g, 3], T)
-        s0 = scales[g, 0]
-        s1 = scales[g, 1]
-        s2 = scales[g, 2]
-        M00 = r00 * s0
-        M01 = r01 * s1
-        M02 = r02 * s2
-        M10 = r10 * s0
-        M11 = r11 * s1
-        M12 = r12 * s2
-        M20 = r20 * s0
-        M21 = r21 * s1
-        M22 = r22 * s2
-        # world covariance S = M M^T
-        S00 = M00 * M00 + M01 * M01 + M02 * M02
-        S01 = M00 * M10 + M01 * M11 + M02 * M12
-        S02 = M00 * M20 + M01 * M21 + M02 * M22
-        S11 = M10 * M10 + M11 * M11 + M12 * M12
-        S12 = M10 * M20 + M11 * M21 + M12 * M22
-        S22 = M20 * M20 + M21 * M21 + M22 * M22
-        # A = R S ; camera covariance Sc = A R^T
-        A00 = V[0, 0] * S00 + V[0, 1] * S01 + V[0, 2] * S02
-        A01 = V[0, 0] * S01 + V[0, 1] * S11 + V[0, 2] * S12
-        A02 = V[0, 0] * S02 + V[0, 1] * S12 + V[0, 2] * S22
-        A10 = V[1, 0] * S00 + V[1, 1] * S01 + V[1, 2] * S02
-        A11 = V[1, 0] * S01 + V[1, 1] * S11 + V[1, 2] * S12
-        A12 = V[1, 0] * S02 + V[1, 1] * S12 + V[1, 2] * S22
-        A20 = V[2, 0] * S00 + V[2, 1] * S01 + V[2, 2] * S02
-        A21 = V[2, 0] * S01 + V[2, 1] * S11 + V[2, 2] * S12
-        A22 = V[2, 0] * S02 + V[2, 1] * S12 + V[2, 2] * S22
-        C00 = A00 * V[0, 0] + A01 * V[0, 1] + A02 * V[0, 2]
-        C01 = A00 * V[1, 0] + A01 * V[1, 1] + A02 * V[1, 2]
-        C02 = A00 * V[2, 0] + A01 * V[2, 1] + A02 * V[2, 2]
-        C11 = A10 * V[1, 0] + A11 * V[1, 1] + A12 * V[1, 2]
-        C12 = A10 * V[2, 0] + A11 * V[2, 1] + A12 * V[2, 2]
-        C22 = A20 * V[2, 0] + A21 * V[2, 1] + A22 * V[2, 2]
-        K = Ks[c]
-        fx = K[0, 0]
-        fy = K[1, 1]
-        cx = K[0, 2]
-        cy = K[1, 2]
-        u = px / pz
-        v = py / pz
+        _r, _q, _M, S = _gaussian_cov(quats, scales, g, T)
+        ((px, py, pz), u, v, (fx, fy, cx, cy), _lim, _Sc, _J, _JS,
+         (cov00, cov01, cov11)) = _project_cam(V, Ks[c], m0, m1, m2, S, Wf, Hf, T)
         mx = fx * u + cx
         my = fy * v + cy
-        tanx = T(0.5) * Wf / fx
-        tany = T(0.5) * Hf / fy
-        lxp = (Wf - cx) / fx + T(FOV_CLAMP_MARGIN) * tanx
-        lxn = cx / fx + T(FOV_CLAMP_MARGIN) * tanx
-        lyp = (Hf - cy) / fy + T(FOV_CLAMP_MARGIN) * tany
-        lyn = cy / fy + T(FOV_CLAMP_MARGIN) * tany
-        uc = min(max(u, -lxn), lxp)
-        vc = min(max(v, -lyn), lyp)
-        J00 = fx / pz
-        J02 = -fx * uc / pz
-        J11 = fy / pz
-        J12 = -fy * vc / pz
-        T00 = J00 * C00 + J02 * C02
-        T01 = J00 * C01 + J02 * C12
-        T02 = J00 * C02 + J02 * C22
-        T11 = J11 * C11 + J12 * C12
-        T12 = J11 * C12 + J12 * C22
-        cov00 = T00 * J00 + T02 * J02
-        cov01 = T01 * J11 + T02 * J12
-        cov11 = T11 * J11 + T12 * J12
         det_orig = cov00 * cov11 - cov01 * cov01
         a = cov00 + e2
         cc = cov11 + e2
@@ -327,27 +307,13 @@ def project_bwd(means, quats, scales, viewmats, Ks, width, height, eps2d, antial
         m0 = means[g, 0]
         m1 = means[g, 1]
         m2 = means[g, 2]
-        (r00, r01, r02, r10, r11, r12, r20, r21, r22,
-         qw, qx, qy, qz, qinv, qcl) = _quat_rotmat(quats[g, 0], quats[g, 1], quats[g, 2],
-                                                   quats[g, 3], T)
         s0 = scales[g, 0]
         s1 = scales[g, 1]
         s2 = scales[g, 2]
-        M00 = r00 * s0
-        M01 = r01 * s1
-        M02 = r02 * s2
-        M10 = r10 * s0
-        M11 = r11 * s1
-        M12 = r12 * s2
-        M20 = r20 * s0
-        M21 = r21 * s1
-        M22 = r22 * s2
-        S00 = M00 * M00 + M01 * M01 + M02 * M02
-        S01 = M00 * M10 + M01 * M11 + M02 * M12
-        S02 = M00 * M20 + M01 * M21 + M02 * M22
-        S11 = M10 * M10 + M11 * M11 + M12 * M12
-        S12 = M10 * M20 + M11 * M21 + M12 * M22
-        S22 = M20 * M20 + M21 * M21 + M22 * M22
+        r, (qw, qx, qy, qz, qinv, qcl), M, S = _gaussian_cov(quats, scales, g, T)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+        M00, M01, M02, M10, M11, M12, M20, M21, M22 = M
+        S00, S01, S02, S11, S12, S22 = S
         # accumulated gradient of the world covariance (symmetric, full-matrix convention)
         gS00 = T(0.0)
         gS01 = T(0.0)
@@ -365,49 +331,9 @@ def project_bwd(means, quats, scales, viewmats, Ks, width, height, eps2d, antial
                 continue
             any_vis = True
             V = viewmats[c]
-            K = Ks[c]
-            px = V[0, 0] * m0 + V[0, 1] * m1 + V[0, 2] * m2 + V[0, 3]
-            py = V[1, 0] * m0 + V[1, 1] * m1 + V[1, 2] * m2 + V[1, 3]
-            pz = V[2, 0] * m0 + V[2, 1] * m1 + V[2, 2] * m2 + V[2, 3]
-            A00 = V[0, 0] * S00 + V[0, 1] * S01 + V[0, 2] * S02
-            A01 = V[0, 0] * S01 + V[0, 1] * S11 + V[0, 2] * S12
-            A02 = V[0, 0] * S02 + V[0, 1] * S12 + V[0, 2] * S22
-            A10 = V[1, 0] * S00 + V[1, 1] * S01 + V[1, 2] * S02
-            A11 = V[1, 0] * S01 + V[1, 1] * S11 + V[1, 2] * S12
-            A12 = V[1, 0] * S02 + V[1, 1] * S12 + V[1, 2] * S22
-            A20 = V[2, 0] * S00 + V[2, 1] * S01 + V[2, 2] * S02
-            A21 = V[2, 0] * S01 + V[2, 1] * S11 + V[2, 2] * S12
-            A22 = V[2, 0] * S02 + V[2, 1] * S12 + V[2, 2] * S22
-            C00 = A00 * V[0, 0] + A01 * V[0, 1] + A02 * V[0, 2]
-            C01 = A00 * V[1, 0] + A01 * V[1, 1] + A02 * V[1, 2]
-            C02 = A00 * V[2, 0] + A01 * V[2, 1] + A02 * V[2, 2]
-            C11 = A10 * V[1, 0] + A11 * V[1, 1] + A12 * V[1, 2]
-            C12 = A10 * V[2, 0] + A11 * V[2, 1] + A12 * V[2, 2]
-            C22 = A20 * V[2, 0] + A21 * V[2, 1] + A22 * V[2, 2]
-            fx = K[0, 0]
-            fy = K[1, 1]
-            cx = K[0, 2]
-            cy = K[1, 2]
-            u = px / pz
-            v = py / pz
-            tanx = T(0.5) * Wf / fx
-            tany = T(0.5) * Hf / fy
-            lxp = (Wf - cx) / fx + T(FOV_CLAMP_MARGIN) * tanx
-            lxn = cx / fx + T(FOV_CLAMP_MARGIN) * tanx
-            lyp = (Hf - cy) / fy + T(FOV_CLAMP_MARGIN) * tany
-            lyn = cy / fy + T(FOV_CLAMP_MARGIN) * tany
-            uc = min(max(u, -lxn), lxp)
-            vc = min(max(v, -lyn), lyp)
-            J00 = fx / pz
-            J02 = -fx * uc / pz
-            J11 = fy / pz
-            J12 = -fy * vc / pz
-            T00 = J00 * C00 + J02 * C02
-            T01 = J00 * C01 + J02 * C12
-            T02 = J00 * C02 + J02 * C22
-            T10 = J11 * C01 + J12 * C02
-            T11 = J11 * C11 + J12 * C12
-            T12 = J11 * C12 + J12 * C22
+            ((px, py, pz), u, v, (fx, fy, cx, cy), (lxp, lxn, lyp, lyn), _Sc,
+             (J00, J02, J11, J12), (T00, T01, T02, T10, T11, T12),
+             _cov) = _project_cam(_view_rows(V), Ks[c], m0, m1, m2, S, Wf, Hf, T)
             ca = conics[idx, 0]
             cb = conics[idx, 1]
             cc = conics[idx, 2]
@@ -769,6 +695,22 @@ def tile_rects(means2d, radii, tile_size, tiles_x, tiles_y, rects):
         rects[i, 3] = min(max(y1, 0), tiles_y)
 
 
+@njit(cache=True, inline="always")
+def _band(bid, bands_per_cam, tiles_y):
+    """Camera and tile rows [r0, r1) of the binning band ``bid`` (bands of tile rows, per
+    camera)."""
+    c = bid // bands_per_cam
+    b = bid - c * bands_per_cam
+    return c, (tiles_y * b) // bands_per_cam, (tiles_y * (b + 1)) // bands_per_cam
+
+
+@njit(cache=True, inline="always")
+def _rect_in_band(rects, i, r0, r1):
+    """Tile columns [xa, xb) and rows [ya, yb) of Gaussian ``i`` inside the band's rows
+    [r0, r1) (ya >= yb: none)."""
+    return rects[i, 0], rects[i, 1], max(rects[i, 2], r0), min(rects[i, 3], r1)
+
+
 @kernel
 def bin_count(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, counts):
     """counts[c * tiles_y * tiles_x + tile] = number of Gaussians overlapping each tile.
@@ -776,22 +718,15 @@ def bin_count(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, counts):
     C = cam_start.shape[0] - 1
     nt = tiles_x * tiles_y
     for bid_ in prange(C * bands_per_cam):
-        bid = np.int64(bid_)  # prange indices may be unsigned
-        c = bid // bands_per_cam
-        b = bid - c * bands_per_cam
-        r0 = (tiles_y * b) // bands_per_cam
-        r1 = (tiles_y * (b + 1)) // bands_per_cam
+        c, r0, r1 = _band(np.int64(bid_), bands_per_cam, tiles_y)
         base = c * nt
         for t in range(r0 * tiles_x, r1 * tiles_x):
             counts[base + t] = 0
         for j in range(cam_start[c], cam_start[c + 1]):
             i = order[j]
-            ya = max(rects[i, 2], r0)
-            yb = min(rects[i, 3], r1)
+            xa, xb, ya, yb = _rect_in_band(rects, i, r0, r1)
             if ya >= yb:
                 continue
-            xa = rects[i, 0]
-            xb = rects[i, 1]
             for ty in range(ya, yb):
                 row = base + ty * tiles_x
                 for tx in range(xa, xb):
@@ -804,23 +739,16 @@ def bin_fill(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, offsets, 
     C = cam_start.shape[0] - 1
     nt = tiles_x * tiles_y
     for bid_ in prange(C * bands_per_cam):
-        bid = np.int64(bid_)  # prange indices may be unsigned
-        c = bid // bands_per_cam
-        b = bid - c * bands_per_cam
-        r0 = (tiles_y * b) // bands_per_cam
-        r1 = (tiles_y * (b + 1)) // bands_per_cam
+        c, r0, r1 = _band(np.int64(bid_), bands_per_cam, tiles_y)
         base = c * nt
         cursor = np.empty((r1 - r0) * tiles_x, dtype=np.int64)
         for t in range((r1 - r0) * tiles_x):
             cursor[t] = offsets[base + r0 * tiles_x + t]
         for j in range(cam_start[c], cam_start[c + 1]):
             i = order[j]
-            ya = max(rects[i, 2], r0)
-            yb = min(rects[i, 3], r1)
+            xa, xb, ya, yb = _rect_in_band(rects, i, r0, r1)
             if ya >= yb:
                 continue
-            xa = rects[i, 0]
-            xb = rects[i, 1]
             for ty in range(ya, yb):
                 row = (ty - r0) * tiles_x
                 for tx in range(xa, xb):
@@ -907,11 +835,12 @@ def _tile_of(tid, n_tiles, tiles_x):
 
 
 @njit(cache=True, inline="always")
-def _gaussian(fi, means2d, conics, opacities, gparams, colors, colors_per_camera, N, DI, T):
-    """What the compositing loops read of the flat (camera, Gaussian) entry ``fi``: mean,
-    conic, opacity, the row-test parameters of :func:`_level`, the colour row index and its
-    first four channels (0 beyond D)."""
-    ci = fi if colors_per_camera else fi % N
+def _gaussian(fi, means2d, conics, opacities, gparams, colors, colors_per_camera, cN, DI, T):
+    """What the compositing loops read of the flat (camera, Gaussian) entry ``fi`` of the
+    camera whose entries start at ``cN = camera * N``: mean, conic, opacity, the row-test
+    parameters of :func:`_level`, the colour row index and its first four channels (0 beyond
+    D). (``fi - cN``, not ``fi % N``: no integer division per entry.)"""
+    ci = fi if colors_per_camera else fi - cN
     return (means2d[fi, 0], means2d[fi, 1], conics[fi, 0], conics[fi, 1], conics[fi, 2],
             opacities[fi], gparams[fi, 0], gparams[fi, 1], gparams[fi, 2], ci,
             colors[ci, 0], colors[ci, 1] if DI > 1 else T(0.0),
@@ -1024,7 +953,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                 continue
             (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
              c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
-                                         colors_per_camera, N, DI, T)
+                                         colors_per_camera, c * N, DI, T)
             jr = T(j - start)
             rlo = TILE
             rhi = 0
@@ -1171,7 +1100,7 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             fi = flat_ids[j]
             (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
              c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
-                                         colors_per_camera, N, DI, T)
+                                         colors_per_camera, c * N, DI, T)
             jr = T(j - start)
             g_mx = T(0.0)
             g_my = T(0.0)

@@ -12,7 +12,8 @@ we register a cache locator that is keyed by *content* instead:
   ``NUMBA_CACHE_DIR`` is pointed at the temp directory so Numba still caches.
 - inside it, a subdirectory per hash of the kernel sources (``_kernels.py``, ``_constants.py``
   and this file) and the Numba version, so two checkouts of different versions never evict
-  each other and any edit of the kernels or their constants recompiles. Subdirectories unused
+  each other and any edit of the kernels, their shared formulas (``_ewa.py``) or their
+  constants recompiles. Subdirectories unused
   for 30 days are removed.
 """
 
@@ -39,7 +40,7 @@ import numba
 from numba.core import caching
 
 _PKG_DIR = Path(__file__).resolve().parent
-_STAMP_FILES = ("_kernels.py", "_constants.py", "_numba_setup.py")
+_STAMP_FILES = ("_kernels.py", "_ewa.py", "_constants.py", "_numba_setup.py")
 _MAX_AGE_DAYS = 30
 
 

@@ -11,12 +11,11 @@ Gaussians whose bounding box reaches it; the tests check it changes nothing.
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor
 
 from ._constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from ._outputs import finish, mode_backgrounds
 from .projection import camera_centers, project
 from .sh import sh_to_color
 
@@ -79,14 +78,7 @@ def rasterize(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, c
         if render_mode in ("RGB+D", "RGB+ED"):
             feats = torch.cat([feats, depths[..., None]], dim=-1)
     D = feats.shape[-1]
-    bg = None
-    if backgrounds is not None:
-        if render_mode in ("D", "ED"):
-            bg = torch.zeros(C, 1, dtype=means.dtype, device=means.device)
-        elif render_mode in ("RGB+D", "RGB+ED"):
-            bg = torch.cat([backgrounds, torch.zeros_like(backgrounds[:, :1])], dim=-1)
-        else:
-            bg = backgrounds
+    bg = mode_backgrounds(backgrounds, render_mode, C, means)
 
     absbuf = torch.zeros(C, N, 2, dtype=means.dtype, device=means.device) if absgrad else None
     if absgrad and means2d.requires_grad:
@@ -139,18 +131,10 @@ def rasterize(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, c
         t_finals.append(t_img)
     render_colors = torch.stack(renders)
     render_alphas = 1.0 - torch.stack(t_finals)[..., None]
-    if render_mode in ("ED", "RGB+ED"):
-        render_colors = torch.cat([render_colors[..., :-1],
-                                   render_colors[..., -1:] / render_alphas.clamp(min=1e-10)], -1)
-    meta = {
-        "camera_ids": None, "gaussian_ids": None, "radii": radii, "means2d": means2d,
-        "depths": depths, "conics": conics, "opacities": opac,
-        "compensations": proj["compensations"] if antialiased else None,
-        "width": width, "height": height, "tile_size": tile_size, "n_cameras": C,
-        "tile_width": math.ceil(width / tile_size), "tile_height": math.ceil(height / tile_size),
-        "backend": "reference",
-    }
-    return render_colors, render_alphas, meta
+    return finish(render_colors, render_alphas, render_mode, radii=radii, means2d=means2d,
+                  depths=depths, conics=conics, opacities=opac,
+                  compensations=proj["compensations"] if antialiased else None, width=width,
+                  height=height, tile_size=tile_size, backend="reference")
 
 
 def _composite_blocks(width, height, m2, con, op, col, radii, idx, make_hook, dtype, block=16):
