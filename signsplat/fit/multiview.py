@@ -130,7 +130,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     log.info("world vertical for the upright prior: %s",
              "body frame +y" if up is None else np.round(up, 4).tolist())
     problem = make_problem(kpm, obs, cfg, frames, weights={"upright": mv["upright_weight"]},
-                           dtype=dtype, device=device, up=up)
+                           dtype=dtype, device=device, up=up, level_cameras=up is not None)
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

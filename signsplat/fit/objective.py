@@ -153,6 +153,21 @@ def upright(global_orient: torch.Tensor, up: torch.Tensor | None = None) -> torc
     return ((pelvis_up - up) ** 2).sum()
 
 
+def level_rig_up(R: torch.Tensor) -> torch.Tensor:
+    """World vertical (3,) of a rig of level cameras, differentiable in ``R (V,3,3)``.
+
+    The unit vector most orthogonal to every camera's image x axis (row 0 of ``R``): the
+    eigenvector of the smallest eigenvalue of ``X^T X``, signed against the cameras' image-down
+    axes. Needs x axes spanning a plane (see :func:`signsplat.fit.cameras.rig_up_direction`,
+    which callers use to check that once).
+    """
+    X = R[:, 0, :]
+    _, vecs = torch.linalg.eigh(X.T @ X)
+    up = vecs[:, 0]
+    down = R[:, 1, :].sum(0)
+    return torch.where((up @ down) > 0, -up, up)
+
+
 def priors(params, w: Weights, pose_w: torch.Tensor, pose_mean: torch.Tensor | None = None,
            up: torch.Tensor | None = None) -> torch.Tensor:
     """Pose, shape, face and hand priors of :class:`~signsplat.fit.bodyfit.FitParams`, per frame.

@@ -37,7 +37,9 @@ class Stage:
     smooth: bool = True
     final_lr_fraction: float = 0.05
     sigma_px: float | None = None  # robust-kernel scale of this stage (None: the problem's)
-    optimizer: str = "adam"  # adam (cosine-decayed lr) or lbfgs (strong Wolfe line search)
+    #: adam (cosine-decayed lr), lbfgs (strong Wolfe line search) or lm (per-frame
+    #: Levenberg-Marquardt, cameras and betas fixed: signsplat.fit.lm; lr unused)
+    optimizer: str = "adam"
 
     @classmethod
     def from_config(cls, cfg: dict) -> "Stage":
@@ -69,15 +71,20 @@ class Problem:
     anchor: dict[str, torch.Tensor] = field(default_factory=dict)
     pose_mean: torch.Tensor | None = None  # (63,) body-pose prior mean
     up: torch.Tensor | None = None  # (3,) world vertical in the fit frame (upright prior)
+    #: the vertical follows the cameras being solved (level rig: see objective.level_rig_up)
+    level_cameras: bool = False
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
-                 dtype=torch.float32, device="cpu", up: np.ndarray | None = None) -> Problem:
+                 dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
+                 level_cameras: bool = False) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
-    confidence 0. ``weights`` overrides entries of ``cfg['weights']``.
+    confidence 0. ``weights`` overrides entries of ``cfg['weights']``. ``up``: the world
+    vertical of the upright prior; with ``level_cameras`` (and ``up`` given, i.e. the rig's
+    x axes span a plane) the vertical is recomputed from the current cameras in every step.
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
@@ -95,7 +102,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         anchor={k: torch.as_tensor(v, dtype=dtype, device=device)
                 for k, v in (anchor or {}).items()},
         pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device),
-        up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device))
+        up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device),
+        level_cameras=bool(level_cameras and up is not None))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -124,7 +132,8 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     terms = {"data": w.reprojection * data, "behind": w.behind_camera * behind}
     pose_w = obj.body_pose_weights(w, dtype=dt, device=dev)
     sub = _SubParams(params, sel)
-    terms["prior"] = obj.priors(sub, w, pose_w, problem.pose_mean, problem.up)
+    up = obj.level_rig_up(R) if problem.level_cameras else problem.up
+    terms["prior"] = obj.priors(sub, w, pose_w, problem.pose_mean, up)
     if stage.smooth:
         contig = None if problem.contiguous is None else _contig(problem.contiguous, sel,
                                                                  kp3d.shape[0])
@@ -172,6 +181,10 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     """Optimise ``stage.groups`` on frames ``sel`` with Adam + cosine decay; returns losses."""
     if stage.iterations <= 0:
         return []
+    if stage.optimizer == "lm":
+        from signsplat.fit.lm import run_lm
+
+        return run_lm(problem, params, cams, stage, sel)
     groups = _param_groups(params, cams, stage)
     if stage.optimizer == "lbfgs":
         return _run_lbfgs(problem, params, cams, stage, sel, groups)
@@ -232,6 +245,8 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         return loss
 
     opt.step(closure)
+    log.debug("stage %s (lbfgs): %d evaluations, loss %.6g -> %.6g", stage.name, len(history),
+              history[0] if history else float("nan"), history[-1] if history else float("nan"))
     return history
 
 
