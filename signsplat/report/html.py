@@ -445,7 +445,8 @@ def write_tables(sections: list[Section], folder: Path) -> list[Path]:
     written = []
     for sec in sections:
         for n, (caption, df) in enumerate(sec.frames):
-            slug = re.sub(r"[^A-Za-z0-9]+", "_", caption).strip("_")[:60]
+            # the caption up to its first ':' (sequence / variant), not its changing figures
+            slug = re.sub(r"[^A-Za-z0-9]+", "_", caption.split(":")[0]).strip("_")[:60]
             path = folder / f"{sec.id}_{n:02d}_{slug}.tsv"
             with atomic_path(path) as tmp:
                 df.to_csv(tmp, sep="\t", index=False)

@@ -80,12 +80,12 @@ rule sweep_table:
 
 rule ablations:
     input:
-        expand(rules.ablation_table.output.table, scene=ABLATION_SCENE),
+        expand(rules.ablation_table.output, scene=ABLATION_SCENE),
 
 
 rule sweep:
     input:
-        expand(rules.sweep_table.output.table, scene=SWEEP_SCENE),
+        expand(rules.sweep_table.output, scene=SWEEP_SCENE),
 
 
 def report_inputs(wildcards):
