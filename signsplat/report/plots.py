@@ -40,7 +40,8 @@ def _save(fig, path: Path) -> Path:
 
 def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
                      seconds="seconds", label="setting", highlight: str | None = None,
-                     title: str = "") -> Path:
+                     title: str = "",
+                     xlabel: str = "training wall-clock seconds (Snakemake benchmark)") -> Path:
     """One panel per metric: quality against wall-clock seconds (log x), the Pareto front as a
     line, the ``highlight`` setting (the demo configuration) as a star."""
     metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
@@ -62,7 +63,7 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
                        edgecolor="black", label=f"demo ({highlight})", zorder=5)
         if (d[seconds] > 0).all() and len(d) > 1:
             ax.set_xscale("log")
-        ax.set_xlabel("wall-clock seconds (Snakemake benchmark)")
+        ax.set_xlabel(xlabel)
         ax.set_ylabel(m.upper())
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
