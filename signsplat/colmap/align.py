@@ -1,7 +1,7 @@
 """Similarity alignment of reconstructed cameras to ground truth, and the camera errors after it.
 
 A reconstruction (COLMAP, or a camera solve) lives in its own frame and scale. We find the
-similarity ``x_gt = s * A @ x_est + b`` (Umeyama 1991, least squares on the camera centres) and
+similarity (:mod:`signsplat.geometry.align`) ``x_gt = s * A @ x_est + b`` (Umeyama 1991, least squares on the camera centres) and
 report per camera the rotation error (degrees) and the centre error (metres, in the ground
 truth's units). When the centres cannot fix a similarity (fewer than 3 cameras, or centres
 that are coincident or collinear) the rotation ``A`` comes from the camera orientations
@@ -16,63 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class Similarity:
-    """``x -> scale * rotation @ x + translation``; rotation (3,3), translation (3,)."""
-
-    scale: float
-    rotation: np.ndarray
-    translation: np.ndarray
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        """Transform points (N,3) -> (N,3)."""
-        return self.scale * np.asarray(x, float) @ self.rotation.T + self.translation
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Similarity:
-    """Least-squares similarity mapping ``src`` (N,3) onto ``dst`` (N,3), N >= 3 (Umeyama 1991).
-
-    The rotation is a proper rotation (det +1) even when the best orthogonal map is a reflection.
-    """
-    src = np.asarray(src, float)
-    dst = np.asarray(dst, float)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise ValueError(f"umeyama needs two (N,3) arrays with N >= 3, got {src.shape}, "
-                         f"{dst.shape}")
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, S, Vt = np.linalg.svd(cov)
-    D = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        D[2, 2] = -1.0
-    R = U @ D @ Vt
-    var_s = (xs**2).sum() / len(src)
-    scale = float(np.trace(np.diag(S) @ D) / var_s) if with_scale and var_s > 0 else 1.0
-    return Similarity(scale, R, mu_d - scale * R @ mu_s)
-
-
-def camera_centres(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """World positions of the camera centres ``-R^T t``: (N,3,3), (N,3) -> (N,3)."""
-    return -np.einsum("nji,nj->ni", np.asarray(R, float), np.asarray(t, float))
-
-
-def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Angle of ``Ra @ Rb^T`` in degrees for (N,3,3) stacks -> (N,)."""
-    rel = np.einsum("nij,nkj->nik", np.asarray(Ra, float), np.asarray(Rb, float))
-    cos = (np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0
-    skew = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0],
-                     rel[:, 1, 0] - rel[:, 0, 1]], axis=1)
-    sin = np.linalg.norm(skew, axis=1) / 2.0
-    return np.degrees(np.arctan2(sin, cos))  # accurate near 0 and 180 degrees, unlike arccos
-
-
-def project_to_so3(M: np.ndarray) -> np.ndarray:
-    """Nearest rotation (Frobenius) to a (3,3) matrix."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+from signsplat.geometry.align import (  # noqa: F401  (re-exported)
+    Similarity, camera_centres, project_to_so3, rotation_angle_deg, umeyama)
 
 
 def centres_degenerate(c: np.ndarray, min_spread: float = 0.0, rel_tol: float = 1e-3) -> bool:

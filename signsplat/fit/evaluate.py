@@ -10,49 +10,10 @@ centroid) per frame; PA- errors use a per-frame similarity (Procrustes) instead.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from signsplat.fit.cameras import Rig
-
-
-@dataclass(frozen=True)
-class Similarity:
-    """``x_dst = s * R @ x_src + t``."""
-
-    s: float
-    R: np.ndarray  # (3,3)
-    t: np.ndarray  # (3,)
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        """x (..., 3) -> (..., 3)."""
-        return self.s * x @ self.R.T + self.t
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True,
-            weights: np.ndarray | None = None) -> Similarity:
-    """Least-squares similarity (Umeyama 1991) mapping ``src (N,3)`` onto ``dst (N,3)``.
-
-    Degenerate inputs (all points equal) give the identity rotation and a pure translation.
-    """
-    src = np.asarray(src, float)
-    dst = np.asarray(dst, float)
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
-    w = w / max(w.sum(), 1e-12)
-    mu_s = w @ src
-    mu_d = w @ dst
-    xs, xd = src - mu_s, dst - mu_d
-    cov = (xd * w[:, None]).T @ xs
-    U, S, Vt = np.linalg.svd(cov)
-    D = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        D[2, 2] = -1
-    R = U @ D @ Vt
-    var_s = float(w @ np.sum(xs**2, axis=1))
-    s = float(np.trace(np.diag(S) @ D) / var_s) if (with_scale and var_s > 1e-12) else 1.0
-    t = mu_d - s * R @ mu_s
-    return Similarity(s, R, t)
+from signsplat.geometry.align import Similarity, rotation_angle_deg, umeyama  # noqa: F401
 
 
 def procrustes_batch(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -61,13 +22,6 @@ def procrustes_batch(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     for i in range(len(pred)):
         out[i] = umeyama(pred[i], gt[i], with_scale=True).apply(pred[i])
     return out
-
-
-def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Geodesic angle between rotations (..,3,3) in degrees."""
-    M = np.einsum("...ji,...jk->...ik", Ra, Rb)
-    c = (np.trace(M, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def _camera_axes_points(rig: Rig, length: float) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""Small shared geometry (numpy): similarity alignment and rotation distances."""
