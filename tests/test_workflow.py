@@ -1,9 +1,12 @@
 """The workflow: `snakemake -n` plans the default config; the simulate rule runs on a tiny scene."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -11,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def snakemake(*args, timeout=900):
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--nolock", *args]
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "1", "--nolock", *args]
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
@@ -73,3 +76,128 @@ def test_simulate_rule_runs_on_the_tiny_scene(tmp_path):
     # nothing left to do: a second dry run plans no job
     res = snakemake("-n", str(target), "--configfile", str(cfg))
     assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
+
+
+def tiny_study_config(tmp_path, **extra) -> Path:
+    """The tiny scene with a tiny avatar (few steps, no mesh upsampling), fitted from the
+    simulator's keypoints in a few steps, one stitched sentence, the report under tmp_path."""
+    cfg = {
+        "results": str(tmp_path / "results"), "sequences": None, "scenes": ["tiny"],
+        "fit": {"keypoints": "ground_truth", "multiview": {"stages": [
+            {"name": "root", "iterations": 5, "lr": 0.05, "groups": ["root"],
+             "warm_start": True},
+            {"name": "body", "iterations": 5, "lr": 0.03, "groups": ["root", "body", "betas"]}]}},
+        "avatar": {"upsample": {"max_rounds": 0},
+                   "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,
+                             "log_every": 2, "threads": 1, "checkpoint_every": 50},
+                   "eval": {"refine_steps": 0, "save_images": 2},
+                   "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 4}},
+        # (merged over config/config.yaml's sections: the default bases' other keys stay)
+        "ablations": {"base": {"train": {"iterations": 4}}},
+        "sweep": {"base": {"train": {"iterations": 4}}, "iterations": [2], "resolution": [],
+                  "max_points": []},
+        "stitch": {"sentences": ["Why are you sad?"], "size": 64},
+        "report": {"html": str(tmp_path / "report" / "index.html")},
+    }
+    cfg.update(extra)
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def planned_variants(stdout: str, rule: str) -> set[str]:
+    """The `variant` wildcard of every planned job of a rule in a dry run."""
+    jobs = stdout.split("\nrule ")
+    return {m.group(1) for j in jobs if j.startswith(f"{rule}:")
+            for m in [re.search(r"wildcards: .*variant=([A-Za-z0-9_]+)", j)] if m}
+
+
+def _default_studies():
+    cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    return cfg["ablations"], cfg["sweep"]
+
+
+def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
+    res = snakemake("-n", "ablations", "--config", f"results={tmp_path}")
+    assert res.returncode == 0, res.stderr + res.stdout
+    counts = job_counts(res.stdout)
+    assert counts["ablation_table"] == 1 and counts["ablations"] == 1
+    # with an empty ablations.base the full model is the demo variant (trained once)
+    full = "demo" if _default_studies()[0]["base"] == {} else "abl_full"
+    assert planned_variants(res.stdout, "train_avatar") == {
+        full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx"}
+    assert counts["fit_smplx"] == 1  # the full model trains on fitted SMPL-X
+    assert f"{tmp_path}/studio6/ablations.parquet" in res.stdout
+
+
+def test_dry_run_of_the_sweep_target_plans_the_default_settings(tmp_path):
+    res = snakemake("-n", "sweep", "--config", f"results={tmp_path}")
+    assert res.returncode == 0, res.stderr + res.stdout
+    ablations, sweep = _default_studies()
+    # the centre is an already declared variant when its config equals one
+    centre = ("demo" if sweep["base"] == {} else
+              "abl_full" if sweep["base"] == ablations["base"] else "sw_base")
+    expected = {"demo", centre} | {f"sw_{axis}{v}"
+                                   for axis in ("iterations", "resolution", "max_points")
+                                   for v in sweep[axis]}
+    assert planned_variants(res.stdout, "train_avatar") == expected
+    assert planned_variants(res.stdout, "evaluate_avatar") == expected
+    assert job_counts(res.stdout)["sweep_table"] == 1
+    assert f"{tmp_path}/studio6/sweep.png" in res.stdout
+
+
+def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path):
+    cfg = tiny_study_config(tmp_path)
+    res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))
+    assert res.returncode == 0, res.stderr + res.stdout
+    # avatar.train.smplx_source defaults to fitted: the source row trains on ground truth
+    assert planned_variants(res.stdout, "train_avatar") == {
+        "demo", "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx",
+        "sw_iterations2"}
+    bad = tiny_study_config(tmp_path, ablations={"scene": "nowhere", "base": {}})
+    res = snakemake("-n", "ablations", "--configfile", str(bad))
+    assert res.returncode != 0
+    out = res.stdout + res.stderr
+    assert "ablations.scene" in out and "'nowhere'" in out and "['tiny']" in out
+
+
+@pytest.mark.slow
+def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path):
+    """Real run on the tiny scene: a tiny demo avatar and one sweep point are trained and
+    evaluated, the sweep table and plot written, the demo avatar signs a sentence
+    (stitch_video), the HTML report shows them, and `snakemake --report` works."""
+    cfg = tiny_study_config(tmp_path)
+    results = tmp_path / "results"
+    page = tmp_path / "report" / "index.html"
+    stitched = results / "tiny" / "stitched" / "stitch_eval.parquet"
+    res = snakemake("sweep", str(stitched), str(page), "--configfile", str(cfg),
+                    timeout=1800)
+    assert res.returncode == 0, res.stderr[-4000:]
+    sweep = pd.read_parquet(results / "tiny" / "sweep.parquet")
+    assert sorted(sweep.setting) == ["demo", "sw_iterations2"]
+    assert set(sweep.iterations) == {4, 2} and set(sweep.resolution) == {64}
+    # seconds come from the benchmark files of the training jobs
+    for _, row in sweep.iterrows():
+        bench = results / "_benchmarks" / "tiny" / f"train_avatar_{row.setting}.tsv"
+        assert row.seconds == pytest.approx(pd.read_csv(bench, sep="\t")["s"].mean())
+    assert sweep.pareto_psnr.any() and np.isfinite(sweep.psnr).all()
+    assert (results / "tiny" / "sweep.png").stat().st_size > 5000
+    # the stitched video of the trained avatar, its 2D baseline and table
+    ev = pd.read_parquet(stitched)
+    assert len(ev) and (stitched.parent / "why-are-you-sad-5e802843.mp4").is_file()
+    assert (stitched.parent / "why-are-you-sad-5e802843.baseline2d.mp4").is_file()
+    html = page.read_text()
+    stitch = html.split('id="stitch"')[1].split("<section")[0]
+    assert "Not available" not in stitch and "stitch_eval.parquet" in stitch
+    assert "2D baseline" in stitch and stitch.count("<figure>") == 8  # 4 frames x 2 videos
+    sweep_sec = html.split('id="sweep"')[1].split("<section")[0]
+    assert "Not available" not in sweep_sec and "sw_iterations2" in sweep_sec
+    # Snakemake's own report over the finished outputs, with the captions
+    out = tmp_path / "snakemake.html"
+    res = snakemake("--report", str(out), "sweep", str(stitched), str(page),
+                    "--configfile", str(cfg))
+    assert res.returncode == 0, res.stderr[-4000:]
+    assert out.stat().st_size > 100_000
+    text = out.read_text(errors="replace")
+    for words in ("Accuracy versus time", "Stitched video", "Pareto front"):
+        assert words in text, words
