@@ -188,19 +188,19 @@ class _Rasterize(torch.autograd.Function):
         out_last = np.empty((C, height, width), np.int32)
         pairs = np.zeros(C * tiles_x * tiles_y, np.int64)
         isect_rows = np.zeros((len(flat_ids), 2), np.uint8)
-        gparams = np.empty((C * N, 3), T)
-        K.raster_params[T](con, op, rad, T, gparams)
+        row_par = np.empty((C * N, 2), np.float64)
+        K.raster_params[T](con, op, rad, T, row_par)
         # heaviest tiles first (longest lists), so the dynamic schedule ends balanced
         tile_order = np.argsort(-np.diff(offsets), kind="stable").astype(np.int64)
         with numba.parallel_chunksize(1):
             K.raster_fwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
                             width, height, tiles_x, tiles_y, T, out_color, out_T, out_last,
-                            pairs, isect_rows, tile_order, gparams)
+                            pairs, isect_rows, tile_order, row_par)
         if info is not None:
             info["n_isects"] = int(len(flat_ids))
             info["pairs_forward"] = int(pairs.sum())
         ctx.arrays = (m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, out_T,
-                      out_last, tiles_x, tiles_y, isect_rows, tile_order, gparams)
+                      out_last, tiles_x, tiles_y, isect_rows, tile_order)
         ctx.cfg = (C, N, D, width, height, absgrad)
         ctx.save_for_backward(means2d)
         render = torch.from_numpy(out_color)
@@ -211,7 +211,7 @@ class _Rasterize(torch.autograd.Function):
     def backward(ctx, v_render, v_alphas):
         (means2d,) = ctx.saved_tensors
         (m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, out_T, out_last,
-         tiles_x, tiles_y, isect_rows, tile_order, gparams) = ctx.arrays
+         tiles_x, tiles_y, isect_rows, tile_order) = ctx.arrays
         C, N, D, width, height, absgrad = ctx.cfg
         T = _dtype_class(means2d.dtype)
         vr = _np(v_render) if v_render is not None else np.zeros((C, height, width, D), T)
@@ -222,7 +222,7 @@ class _Rasterize(torch.autograd.Function):
         with numba.parallel_chunksize(1):
             K.raster_bwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
                             width, height, tiles_x, tiles_y, T, out_T, out_last, isect_rows, vr,
-                            va, nt, gbuf, tile_order, gparams)
+                            va, nt, gbuf, tile_order)
         if nt > 1:
             red = np.empty((C * N, KK), T)
             K.reduce_threads[T](gbuf, red)

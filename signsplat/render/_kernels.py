@@ -761,10 +761,11 @@ def bin_fill(order, cam_start, rects, tiles_x, tiles_y, bands_per_cam, offsets, 
 # A tile lives in ONE flat buffer of per-pixel fields (field f of pixel p at f * 256 + p), so
 # LLVM sees constant distances between the fields and vectorises the 16-pixel row loops without
 # runtime alias checks. Each Gaussian of the tile's depth-sorted list is evaluated row by row
-# over the rows of its bounding box, skipping rows whose pixels are all finished and rows that
-# the alpha >= 1/255 ellipse does not reach (both tests are conservative: they only skip pairs
-# that would be skipped anyway). A row is always evaluated whole: one 16-lane vector (AVX-512)
-# with no scalar remainder. The first four channels are composited inside the row loop;
+# over the rows its alpha >= 1/255 ellipse can reach (:func:`_tile_rows`, from parameters
+# computed once per Gaussian), skipping rows whose pixels are all finished (both are conservative: they only skip
+# pairs that would be skipped anyway). No other test per row: a scalar test per row (a square
+# root and data-dependent branches) cost more than the row's vector work it saved. A row is
+# always evaluated whole: one 16-lane vector (AVX-512) with no scalar remainder. The first four channels are composited inside the row loop;
 # channels beyond four (rare) in extra passes.
 #
 # The row loops keep no integer counters: a sum of 64-bit integers inside the loop halves the
@@ -835,15 +836,14 @@ def _tile_of(tid, n_tiles, tiles_x):
 
 
 @njit(cache=True, inline="always")
-def _gaussian(fi, means2d, conics, opacities, gparams, colors, colors_per_camera, cN, DI, T):
+def _gaussian(fi, means2d, conics, opacities, colors, colors_per_camera, cN, DI, T):
     """What the compositing loops read of the flat (camera, Gaussian) entry ``fi`` of the
-    camera whose entries start at ``cN = camera * N``: mean, conic, opacity, the row-test
-    parameters of :func:`_level`, the colour row index and its first four channels (0 beyond
-    D). (``fi - cN``, not ``fi % N``: no integer division per entry.)"""
+    camera whose entries start at ``cN = camera * N``: mean, conic, opacity, the colour row
+    index and its first four channels (0 beyond D). (``fi - cN``, not ``fi % N``: no integer
+    division per entry.)"""
     ci = fi if colors_per_camera else fi - cN
     return (means2d[fi, 0], means2d[fi, 1], conics[fi, 0], conics[fi, 1], conics[fi, 2],
-            opacities[fi], gparams[fi, 0], gparams[fi, 1], gparams[fi, 2], ci,
-            colors[ci, 0], colors[ci, 1] if DI > 1 else T(0.0),
+            opacities[fi], ci, colors[ci, 0], colors[ci, 1] if DI > 1 else T(0.0),
             colors[ci, 2] if DI > 2 else T(0.0), colors[ci, 3] if DI > 3 else T(0.0))
 
 
@@ -863,50 +863,74 @@ def _row_range(my, ry, y0, height):
 
 
 @njit(cache=True, inline="always")
-def _row_reached(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
-    """Whether the ellipse ``sigma <= level`` reaches the tile row at vertical offset
-    ``dy = my - py`` (row length ``xw``), with a 1 px margin: False only where every pixel of
-    the row has alpha < 1/255."""
-    smin = T(0.5) * dy * dy * s_c
-    if not (smin <= level):
-        return False
-    h = math.sqrt(T(2.0) * (level - smin) * inv_ca) + T(1.0)
-    centre = mx + cb * dy * inv_ca - T(x0)  # tile-relative; pixel i has its centre at i + 0.5
-    return centre + h >= T(0.5) and centre - h <= T(xw) - T(0.5)
+def _row_params(op, ca, cb, cc):
+    """Per-Gaussian parameters of :func:`_tile_rows` (float64): the sigma level of
+    alpha = 1/255, slightly enlarged (``ln(opacity * 255)``: alpha >= 1/255 only inside the
+    ellipse ``sigma <= level``; the enlargement covers float32 rounding), and the ellipse's
+    vertical half-extent: along a row at vertical offset dy the smallest sigma is
+    ``dy^2 (c - b^2 / a) / 2``, so it spans ``|dy| <= sqrt(2 level / (c - b^2 / a))``."""
+    level = math.log(max(float(op), ALPHA_THRESHOLD) / ALPHA_THRESHOLD) * 1.001 + 1e-3
+    s_c = float(cc) - float(cb) * float(cb) / float(ca)
+    return level, math.sqrt(2.0 * level / s_c) if s_c > 0.0 else math.inf
+
+
+_ROW_MARGIN = 0.01  # pixels, on top of the enlarged level
 
 
 @njit(cache=True, inline="always")
-def _level(op, ca, cb, cc, T):
-    """sigma level of alpha = 1/255 (slightly enlarged), 1 / a and the Schur complement
-    c - b^2 / a used by :func:`_row_reached`."""
-    level = math.log(max(op, T(ALPHA_THRESHOLD)) / T(ALPHA_THRESHOLD)) * T(1.001) + T(1e-3)
-    inv_ca = T(1.0) / ca
-    s_c = max(cc - cb * cb * inv_ca, T(0.0))
-    return level, inv_ca, s_c
+def _tile_rows(mx, my, ry, ca, cb, cc, level, hy, x0, xw, y0, height):
+    """Rows [lo, hi) of the tile at (x0, y0) (row length ``xw``) to evaluate for a Gaussian:
+    the rows of its bounding box (:func:`_row_range`) that reach the part of the ellipse
+    ``sigma <= level`` over the tile's columns. Conservative: the other rows hold only pairs
+    with alpha < 1/255.
+
+    With dx = mx - px and dy = my - py, the ellipse's top point is at (-b hy / a, hy). Its
+    upper boundary dy = -b dx / c + sqrt((2 level - dx^2 (a - b^2 / c)) / c) is concave, so
+    over the tile's columns (an interval of dx) it is highest at the top point's dx clamped to
+    that interval; likewise the bottom. Computed in float64."""
+    lo, hi = _row_range(my, ry, y0, height)
+    a = float(ca)
+    b = float(cb)
+    c = float(cc)
+    s_a = a - b * b / c
+    if lo >= hi or not (a > 0.0 and c > 0.0 and s_a > 0.0 and hy < 1e7):
+        return lo, hi
+    u1 = mx - (float(x0 + xw) - 0.5) - _ROW_MARGIN  # dx over the tile's pixel centres
+    u2 = mx - (float(x0) + 0.5) + _ROW_MARGIN
+    t = -b * hy / a  # dx of the top point (the bottom one is at -t)
+    dxt = min(max(t, u1), u2)
+    dxb = min(max(-t, u1), u2)
+    rt = 2.0 * level - dxt * dxt * s_a
+    rb = 2.0 * level - dxb * dxb * s_a
+    if rt < 0.0 or rb < 0.0:  # the columns miss the ellipse
+        return 0, 0
+    dymax = -b * dxt / c + math.sqrt(rt / c) + _ROW_MARGIN
+    dymin = -b * dxb / c - math.sqrt(rb / c) - _ROW_MARGIN
+    # rows whose centre py = y0 + y + 0.5 lies in [my - dymax, my - dymin]
+    return (max(lo, math.ceil(my - dymax - 0.5) - y0),
+            min(hi, math.floor(my - dymin - 0.5) - y0 + 1))
 
 
 @kernel
-def raster_params(conics, opacities, radii, T, gparams):
-    """Per (camera, Gaussian): the row-test parameters of :func:`_level` (computed once, not
-    once per tile)."""
+def raster_params(conics, opacities, radii, T, row_par):
+    """Per (camera, Gaussian): ``row_par[i]`` = (level, hy) of :func:`_row_params` (computed
+    once, not once per tile)."""
     n = conics.shape[0]
     for i_ in prange(n):
         i = np.int64(i_)  # prange indices may be unsigned
         if radii[i, 0] <= 0 and radii[i, 1] <= 0:
-            gparams[i, 0] = T(0.0)
-            gparams[i, 1] = T(0.0)
-            gparams[i, 2] = T(0.0)
+            row_par[i, 0] = 0.0
+            row_par[i, 1] = 0.0
             continue
-        level, inv_ca, s_c = _level(opacities[i], conics[i, 0], conics[i, 1], conics[i, 2], T)
-        gparams[i, 0] = level
-        gparams[i, 1] = inv_ca
-        gparams[i, 2] = s_c
+        level, hy = _row_params(opacities[i], conics[i, 0], conics[i, 1], conics[i, 2])
+        row_par[i, 0] = level
+        row_par[i, 1] = hy
 
 
 @kernel
 def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               out_color, out_T, out_last, pair_counts, isect_rows, tile_order, gparams):
+               out_color, out_T, out_last, pair_counts, isect_rows, tile_order, row_par):
     """Front-to-back compositing, tile by tile.
 
     Inputs are flat over (camera, Gaussian): means2d [C*N, 2], conics [C*N, 3], opacities
@@ -948,11 +972,13 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             if ndone >= NP:
                 break
             fi = flat_ids[j]
-            lo, hi = _row_range(float(means2d[fi, 1]), radii[fi, 1], y0, height)
+            lo, hi = _tile_rows(float(means2d[fi, 0]), float(means2d[fi, 1]), radii[fi, 1],
+                                conics[fi, 0], conics[fi, 1], conics[fi, 2], row_par[fi, 0],
+                                row_par[fi, 1], x0, xw, y0, height)
             if lo >= hi:
                 continue
-            (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
-             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
+            (mx, my, ca, cb, cc, op, ci,
+             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, colors,
                                          colors_per_camera, c * N, DI, T)
             jr = T(j - start)
             rlo = TILE
@@ -961,8 +987,6 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                 if rowdone[y] >= TILE:
                     continue
                 dy = my - (T(y0 + y) + T(0.5))  # one value per row: the same float as per pixel
-                if not _row_reached(dy, mx, x0, xw, cb, inv_ca, s_c, level, T):
-                    continue
                 npairs += xw
                 anyterm = False
                 anycontrib = False
@@ -1031,8 +1055,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
 @kernel_fastmath
 def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order,
-               gparams):
+               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order):
     """Back-to-front backward of :func:`raster_fwd`, tile by tile, over the rows where the
     forward composited each Gaussian (``isect_rows``; elsewhere its terms are zero).
 
@@ -1098,8 +1121,8 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             if lo >= hi:
                 continue
             fi = flat_ids[j]
-            (mx, my, ca, cb, cc, op, level, inv_ca, s_c, ci,
-             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, gparams, colors,
+            (mx, my, ca, cb, cc, op, ci,
+             c0, c1, c2, c3) = _gaussian(fi, means2d, conics, opacities, colors,
                                          colors_per_camera, c * N, DI, T)
             jr = T(j - start)
             g_mx = T(0.0)
@@ -1119,9 +1142,6 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
             touched = False
             for y in range(lo, hi):
                 if rowmax[y] < j:
-                    continue
-                if not _row_reached(my - (T(y0 + y) + T(0.5)), mx, x0, xw, cb, inv_ca, s_c,
-                                    level, T):
                     continue
                 touched = True
                 # whole rows: LLVM vectorises this loop 16 lanes wide, so a half row would run
