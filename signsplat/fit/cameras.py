@@ -190,3 +190,103 @@ def rig_up_direction(R: np.ndarray, min_spread: float = 0.1) -> np.ndarray | Non
     if up @ (-np.asarray(R, float)[:, 1, :].sum(0)) < 0:
         up = -up
     return up / np.linalg.norm(up)
+
+
+def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarray,
+               threshold_px: float, iterations: int = 200, seed: int = 0
+               ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """Pose of one camera robust to outlying correspondences (RANSAC, then LM on inliers).
+
+    object_points (N,3) metres, image_points (N,2) pixels, K (3,3); ``threshold_px``: the
+    inlier reprojection distance. Returns ``(R, t, rms px of the inliers, inlier fraction)`` or
+    None when fewer than 6 points, no consensus, or points behind the camera.
+    """
+    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    if len(obj) < 6 or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        return None
+    cv2.setRNGSeed(seed)
+    try:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            obj, img, K, None, iterationsCount=iterations, reprojectionError=threshold_px,
+            confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or inl is None or len(inl) < 6:
+            return None
+        inl = inl.reshape(-1)
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
+    except cv2.error:
+        return None
+    R, _ = cv2.Rodrigues(rvec)
+    t = tvec.reshape(3)
+    depth = (obj.reshape(-1, 3) @ R.T + t)[:, 2]
+    if not np.isfinite(R).all() or (depth <= 0).mean() > 0.1:
+        return None
+    proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, K, None)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img[inl].reshape(-1, 2)) ** 2,
+                                       -1))))
+    return R, t, rms, len(inl) / len(obj)
+
+
+def triangulate(P: np.ndarray, uv: np.ndarray, w: np.ndarray, min_views: int = 2
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (DLT) triangulation of many points.
+
+    P (V,3,4) projection matrices ``K [R|t]``; uv (V,N,2) pixels; w (V,N) weights (0 = not
+    seen). Returns (X (N,3) world points, ok (N,) bool: seen in >= ``min_views`` views and in
+    front of the cameras that saw it). Rows of a point are normalised so each view counts
+    by its weight only.
+    """
+    V, N = w.shape
+    A = np.concatenate([uv[..., 0:1] * P[:, None, 2] - P[:, None, 0],
+                        uv[..., 1:2] * P[:, None, 2] - P[:, None, 1]], axis=0)  # (2V,N,4)
+    A = A / np.maximum(np.linalg.norm(A, axis=-1, keepdims=True), 1e-12)
+    A = A * np.concatenate([w, w], 0)[..., None]
+    _, _, vt = np.linalg.svd(np.transpose(A, (1, 0, 2)))  # (N,4,4)
+    Xh = vt[:, -1]
+    ok = ((w > 0).sum(0) >= min_views) & (np.abs(Xh[:, 3]) > 1e-12)
+    X = Xh[:, :3] / np.where(ok, Xh[:, 3], 1.0)[:, None]
+    z = np.einsum("vij,nj->vni", P[:, :, :3], X) + P[:, None, :, 3]
+    front = ((z[..., 2] > 0) | (w <= 0)).all(0)
+    return np.where((ok & front)[:, None], X, 0.0), ok & front
+
+
+def leave_one_out_px(K: np.ndarray, R: np.ndarray, t: np.ndarray, uv: np.ndarray,
+                     w: np.ndarray, mirror: np.ndarray | None = None) -> np.ndarray:
+    """Multi-view consistency of a rig: per view, the median distance (px) between its
+    observations and the points triangulated from the OTHER views, reprojected.
+
+    K, R, t (V,...); uv (V,N,2) observations of N points (e.g. keypoints x frames), w (V,N).
+    Robust to a bad view or detection among the others: each point is triangulated from every
+    pair of other views and the smallest of the pairs' reprojection errors is kept (a wrong
+    camera ``v`` misses the points of the good pairs, and garbage points of a bad pair
+    rarely land on the detection). ``mirror
+    (N,)``: index of each point's left/right counterpart; a view's error is then the smaller
+    of the two (detectors confuse sides; this tests the camera, not the labels).
+    Returns (V,) medians; NaN for a view with fewer than 5 testable points.
+    """
+    V, N = w.shape
+    P = np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))
+    out = np.full(V, np.nan)
+    for v in range(V):
+        others = [u for u in range(V) if u != v]
+        errs = []
+        for i, a in enumerate(others):
+            for b in others[i + 1:]:
+                X, ok = triangulate(P[[a, b]], uv[[a, b]], w[[a, b]])
+                xc = X @ R[v].T + t[v]
+                ok = ok & (xc[:, 2] > 1e-3)
+                proj = (xc / np.where(ok, xc[:, 2], 1.0)[:, None]) @ K[v].T
+                e = np.where(w[v] > 0, np.linalg.norm(proj[:, :2] - uv[v], axis=-1), np.inf)
+                if mirror is not None:
+                    em = np.where(w[v][mirror] > 0,
+                                  np.linalg.norm(proj[:, :2] - uv[v][mirror], axis=-1), np.inf)
+                    e = np.minimum(e, em)
+                errs.append(np.where(ok & np.isfinite(e), e, np.nan))
+        if not errs:
+            continue
+        E = np.stack(errs)
+        seen = np.isfinite(E).any(0)
+        if seen.sum() < 5:
+            continue
+        out[v] = float(np.median(np.nanmin(E[:, seen], axis=0)))
+    return out

@@ -23,7 +23,8 @@ import torch
 from signsplat.body import joints as J
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
-from signsplat.fit.cameras import CameraParams, Rig, pnp, rig_prior, rig_up_direction
+from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
+                                   rig_prior, rig_up_direction)
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 
@@ -31,6 +32,9 @@ log = logging.getLogger(__name__)
 
 #: Keypoints that move rigidly with the head and torso: nose, eyes, ears, shoulders, hips, face.
 PNP_KEYPOINTS = tuple(range(0, 7)) + (11, 12) + J.KP_FACE
+#: Keypoints of the multi-view consistency test (camera_init auto): the COCO body points down
+#: to the hips (the most reliable detections), over the first frames.
+CONSISTENCY_KEYPOINTS = tuple(range(0, 13))
 
 
 def neutral_keypoints(kpm: KeypointModel, dtype=torch.float32, device="cpu") -> np.ndarray:
@@ -54,12 +58,52 @@ def median_observation(obs_v: np.ndarray, frames: int) -> np.ndarray:
     return out
 
 
+def _pooled_correspondences(kp_neutral: np.ndarray, obs_v: np.ndarray, frames: int,
+                             min_score: float) -> tuple[np.ndarray, np.ndarray]:
+    """Neutral-body points and their detections over the first ``frames`` observed frames of
+    one view (head/torso keypoints with score >= ``min_score``): (N,3), (N,2)."""
+    idx = np.asarray(PNP_KEYPOINTS)
+    seen = np.nonzero((obs_v[:, idx, 2] > 0).any(1))[0][:frames]
+    o = obs_v[seen][:, idx]  # (F,K,3)
+    m = o[..., 2] >= min_score
+    return np.broadcast_to(kp_neutral[idx], o[..., :3].shape)[m], o[..., :2][m]
+
+
+#: Left/right counterpart of each consistency keypoint (nose stays).
+_MIRROR = (0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11)
+
+
+def _consistency_points(obs: np.ndarray, frames: int
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observations (V,N,2), weights (V,N) and left/right counterparts (N,) of the
+    consistency keypoints over the ``2 frames`` frames observed most (earliest first)."""
+    idx = np.asarray(CONSISTENCY_KEYPOINTS)
+    busy = (obs[:, :, idx, 2] > 0).sum((0, 2))
+    sel = np.sort(np.argsort(-busy, kind="stable")[:max(frames, 1) * 2])
+    o = obs[:, sel][:, :, idx]  # (V,F,K,3)
+    V, F, Kn = o.shape[:3]
+    mirror = (np.arange(F)[:, None] * Kn + np.asarray(_MIRROR)[None]).reshape(-1)
+    return o[..., :2].reshape(V, -1, 2), o[..., 2].reshape(V, -1), mirror
+
+
 def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
                 cfg: dict) -> tuple[Rig, list[str], np.ndarray]:
-    """Cameras from PnP of the neutral body; returns (rig, status per view, rms px per view).
+    """Cameras without ground truth; returns (rig, status per view, rms px per view).
 
-    obs (V,T,133,3) cleaned observations; K (V,3,3). Status: 'pnp', 'prior' (PnP impossible
-    or implausible; arc prior used) or 'no_detections'.
+    obs (V,T,133,3) cleaned observations; K (V,3,3). ``cfg['camera_init']``:
+
+    - ``pnp``: each view's PnP of the neutral body against the median of its first frames'
+      detections; the arc prior where PnP fails or is implausible;
+    - ``rig_prior``: the arc prior for every view with detections;
+    - ``auto``: per view the candidates PnP (median), PnP-RANSAC (every confident detection of
+      the first frames, outliers rejected) and the arc prior; the rig is chosen by multi-view
+      consistency (:func:`signsplat.fit.cameras.leave_one_out_px`: body keypoints triangulated
+      from the other views must reproject onto each view's detections): first the best of
+      the three uniform rigs, then per view the candidate that lowers its leave-one-out error
+      (two rounds). Noisy detections (a few-pixel face, swapped sides) make single-view PnP
+      tens of degrees wrong; the consistency test catches it.
+
+    Status per view: 'pnp', 'pnp_ransac', 'prior' or 'no_detections'.
     """
     V = obs.shape[0]
     idx = np.asarray(PNP_KEYPOINTS)
@@ -67,29 +111,92 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
     prior = rig_prior(K, width, height, V, cfg["camera_prior"]["arc_degrees"],
                       cfg["camera_prior"]["distance"], chest)
     R, t = prior.R.copy(), prior.t.copy()
+    mode = cfg.get("camera_init", "pnp")
     status, rms = [], np.full(V, np.nan)
+    cands: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
     for v in range(V):
         med = median_observation(obs[v], cfg["init_frames"])
         m = med[idx, 2] > 0
+        cands.append({})
         if not m.any():
             status.append("no_detections")
             continue
-        if cfg.get("camera_init", "pnp") == "rig_prior":
+        cands[v]["prior"] = (prior.R[v], prior.t[v])
+        if mode == "rig_prior":
             status.append("prior")
             continue
         sol = None
         if m.sum() >= cfg["pnp_min_points"]:
             sol = pnp(kp_neutral[idx][m], med[idx][m][:, :2], K[v])
-        if sol is None or sol[2] > cfg["pnp_max_rms_px"] or \
-                np.linalg.norm(sol[1]) > cfg["pnp_max_distance_m"]:
-            status.append("prior")
-            if sol is not None:
-                rms[v] = sol[2]
-            continue
-        R[v], t[v], rms[v] = sol
-        status.append("pnp")
+        if sol is not None and sol[2] <= cfg["pnp_max_rms_px"] and \
+                np.linalg.norm(sol[1]) <= cfg["pnp_max_distance_m"]:
+            cands[v]["pnp"] = (sol[0], sol[1])
+            rms[v] = sol[2]
+        elif sol is not None:
+            rms[v] = sol[2]
+        if mode == "auto":
+            X, x = _pooled_correspondences(kp_neutral, obs[v], cfg["init_frames"],
+                                           cfg["ransac_min_score"])
+            thr = cfg["ransac_threshold"] * float(np.asarray(height)[v])
+            rs = pnp_ransac(X, x, K[v], thr)
+            if rs is not None and rs[3] >= cfg["ransac_min_inliers"] and \
+                    np.linalg.norm(rs[1]) <= cfg["pnp_max_distance_m"]:
+                cands[v]["pnp_ransac"] = (rs[0], rs[1])
+        best = "pnp" if "pnp" in cands[v] else "prior"
+        R[v], t[v] = cands[v][best]
+        status.append(best)
+    if mode == "auto":
+        R, t, status = _choose_by_consistency(cands, obs, np.asarray(K, float), R, t, status,
+                                              cfg["init_frames"])
     return Rig(K=np.asarray(K, float), R=R, t=t, width=np.asarray(width),
                height=np.asarray(height)), status, rms
+
+
+def _choose_by_consistency(cands, obs, K, R, t, status, frames):
+    """Candidate cameras per view chosen by leave-one-out multi-view consistency."""
+    uv, w, mirror = _consistency_points(obs, frames)
+    live = [v for v in range(len(cands)) if cands[v]]
+    if len(live) < 3:
+        return R, t, status
+
+    def score(Rs, ts):
+        e = leave_one_out_px(K[live], Rs[live], ts[live], uv[live], w[live], mirror)
+        return float(np.nanmedian(e)) if np.isfinite(e).any() else np.inf, e
+
+    best, best_s = None, np.inf
+    for name in ("prior", "pnp", "pnp_ransac"):
+        Rs, ts, st = R.copy(), t.copy(), list(status)
+        for v in live:
+            key = name if name in cands[v] else next(
+                k for k in ("pnp_ransac", "pnp", "prior") if k in cands[v])
+            Rs[v], ts[v] = cands[v][key]
+            st[v] = key
+        s, _ = score(Rs, ts)
+        log.info("camera init: uniform rig %r -> leave-one-out median %.2f px", name, s)
+        if s < best_s:
+            best, best_s = (Rs, ts, st), s
+    if best is None:
+        return R, t, status
+    R, t, status = best
+    for _ in range(2):
+        changed = False
+        for i, v in enumerate(live):
+            cur = score(R, t)[1][i]
+            for key, (Rc, tc) in cands[v].items():
+                if key == status[v]:
+                    continue
+                R2, t2 = R.copy(), t.copy()
+                R2[v], t2[v] = Rc, tc
+                e = score(R2, t2)[1][i]
+                if np.isfinite(e) and (not np.isfinite(cur) or e < 0.8 * cur):
+                    R, t, cur = R2, t2, e
+                    status = list(status)
+                    status[v] = key
+                    changed = True
+        if not changed:
+            break
+    log.info("camera init: chosen %s", status)
+    return R, t, status
 
 
 def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
@@ -110,7 +217,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     kp0 = neutral_keypoints(kpm, dtype, device)
     rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
     views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
-    ok = ("pnp", "prior") if mv.get("camera_init") == "rig_prior" else ("pnp",)
+    ok = ("pnp",) if mv.get("camera_init") == "pnp" else ("pnp", "pnp_ransac", "prior")
     solved = [v for v in range(V) if status[v] in ok]
     if not solved:
         raise ValueError("no camera could be initialised: too few head/torso keypoints in "

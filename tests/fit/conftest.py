@@ -24,7 +24,7 @@ def body_path(tmp_path_factory):
 def kpm(body_path):
     from signsplat.fit.cli import load_keypoint_model
 
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # shared CPUs: oversubscribed OpenMP threads are very slow
     return load_keypoint_model(body_path, 10, 10, "cpu")
 
 

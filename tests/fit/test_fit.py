@@ -74,7 +74,7 @@ def test_multiview_recovers_pose_and_cameras(kpm):
     rig = synthetic_rig(V, arc=120)  # centres on a horizontal arc: coplanar cameras
     obs = observe(kpm, gt, rig)
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, _cfg(FAST_MV))
-    assert res.camera_status == ["pnp"] * V
+    assert set(res.camera_status) <= {"pnp", "pnp_ransac", "prior"}
     assert all(np.isfinite(v).all() for v in res.params.values())
     cam = E.camera_errors(res.rig, rig)
     assert cam["rotation_deg_max"] < 3.0 and cam["centre_m_max"] < 0.08
@@ -239,3 +239,112 @@ def test_rig_prior_camera_init(kpm):
     assert status == ["prior", "no_detections", "prior"]
     # the prior is the scene's own arc layout around the body: close to the true rig
     assert E.camera_errors(rig0, rig)["rotation_deg_max"] < 10.0
+
+
+def _corrupt(kpm, gt, rig, seed=5):
+    """GT keypoints as a weak detector sees them: 1.5 px noise, 20 % dropouts, 8 % outliers
+    anywhere in the image, a 4 px noisy face, and one side view with left/right swapped."""
+    from signsplat.body import joints as J
+
+    obs = observe(kpm, gt, rig, noise_px=1.5, seed=seed)
+    rng = np.random.default_rng(seed)
+    obs[..., 2][rng.random(obs.shape[:3]) < 0.2] = 0.0
+    out = (rng.random(obs.shape[:3]) < 0.08) & (obs[..., 2] > 0)
+    obs[..., 0][out] = rng.uniform(0, 256, out.sum())
+    obs[..., 1][out] = rng.uniform(0, 256, out.sum())
+    face = list(J.KP_FACE)
+    obs[:, :, face, :2] += rng.normal(0, 4.0, obs[:, :, face, :2].shape)
+    swap = np.arange(133)
+    for a, b in ((1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12)):
+        swap[a], swap[b] = b, a
+    obs[1] = obs[1][:, swap]
+    return obs
+
+
+def test_camera_init_auto_survives_noise_outliers_and_a_wrong_prior(kpm):
+    """camera_init auto picks, per view, among PnP, PnP-RANSAC and a deliberately wrong arc
+    prior (120 deg at 2.6 m for a 150 deg rig at 2 m) by multi-view consistency: it must do at
+    least as well as the better uniform choice and stay within a few degrees, where the prior
+    alone is 15 degrees off at the ends."""
+    from signsplat.fit.cli import clean_all
+    from signsplat.fit.multiview import initial_rig, neutral_keypoints
+
+    T, V = 8, 5
+    gt = random_motion(T, seed=11)
+    rig = synthetic_rig(V, arc=150)
+    obs, _ = clean_all(_corrupt(kpm, gt, rig), np.arange(T) / 25.0, rig.height, _cfg({}))
+    errs = {}
+    for mode in ("auto", "pnp", "rig_prior"):
+        cfg = _cfg({"multiview": {"camera_init": mode,
+                                  "camera_prior": {"arc_degrees": 120, "distance": 2.6}}})
+        rig0, status, _ = initial_rig(neutral_keypoints(kpm), obs, rig.K, rig.width,
+                                      rig.height, cfg["multiview"])
+        errs[mode] = E.camera_errors(rig0, rig)
+    assert errs["rig_prior"]["rotation_deg_max"] > 14.0  # the prior really is wrong
+    auto = errs["auto"]["rotation_deg_mean"]
+    assert auto <= min(errs["pnp"]["rotation_deg_mean"],
+                       errs["rig_prior"]["rotation_deg_mean"]) + 0.5
+    assert errs["auto"]["rotation_deg_max"] < 12.0
+
+
+def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm):
+    """Noisy, dropped, outlying and side-swapped keypoints with a wrong rig prior: the default
+    auto init + Adam stages + the Levenberg-Marquardt joint stage recover the cameras to ~1
+    degree and the upper body to a few centimetres (8 frames, a few seconds)."""
+    from signsplat.fit.cli import clean_all
+
+    T, V = 8, 5
+    gt = random_motion(T, seed=11)
+    rig = synthetic_rig(V, arc=150)
+    cfg = _cfg({**json.loads(json.dumps(FAST_MV)), "min_score": 0.3})
+    cfg["multiview"]["camera_prior"] = {"arc_degrees": 120, "distance": 2.6}
+    cfg["multiview"]["stages"].append({"name": "joint", "iterations": 12, "lr": 1.0,
+                                       "optimizer": "lm", "sigma_px": 10,
+                                       "groups": ["root", "body", "hands", "face", "betas",
+                                                  "cameras"]})
+    obs, _ = clean_all(_corrupt(kpm, gt, rig), np.arange(T) / 25.0, rig.height, cfg)
+    res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
+    cam = E.camera_errors(res.rig, rig)
+    assert cam["rotation_deg_mean"] < 1.5 and cam["centre_m_mean"] < 0.03
+    sim, _ = E.gauge_alignment(res.rig, rig)
+    err = _upper_mpjpe(kpm, res.params, gt, sim)
+    assert err[("mpjpe", "upper_body")] < 25.0
+    assert all(np.isfinite(v).all() for v in res.params.values())
+
+
+def test_lm_stage_reaches_the_exact_solution_from_a_tilted_pelvis(kpm):
+    """Perfect keypoints, cameras known: from a start with the pelvis tilted 4 degrees and the
+    spine bent back (the valley first-order steps crawl along), 20 Levenberg-Marquardt
+    iterations reach a lower objective and less than half the body error of 20 Adam
+    iterations. (The remaining ~7 mm is the priors' pull on this motion's spine sway, with no
+    upright prior and unobserved legs: the objective's optimum, not the solver's.)"""
+    from signsplat.fit.bodyfit import FitParams
+    from signsplat.fit.cameras import CameraParams
+    from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
+
+    T, V = 4, 4
+    gt = random_motion(T, seed=7)
+    rig = synthetic_rig(V, arc=150)
+    obs = observe(kpm, gt, rig)
+    cfg = _cfg({})
+    init = {k: np.array(gt[k]) for k in ("global_orient", "transl", "body_pose", "jaw_pose",
+                                         "expression", "left_hand_pose", "right_hand_pose")}
+    init["betas"] = gt["betas"][:1]
+    init["global_orient"][:, 0] += np.radians(4.0)
+    init["body_pose"][:, 6] -= np.radians(4.0)  # spine2 (joint 6) bends the other way
+
+    def run(optimizer, iterations):
+        params = FitParams(T, 10, 10, init=init)
+        cams = CameraParams(rig, fixed=[0])
+        problem = make_problem(kpm, obs, cfg, np.arange(T))
+        st = {"name": "t", "iterations": iterations, "lr": 1.0 if optimizer == "lm" else 0.003,
+              "optimizer": optimizer, "groups": ["root", "body", "hands", "face"]}
+        stage = Stage.from_config(st)
+        run_stage(problem, params, cams, stage)
+        with torch.no_grad():
+            loss = float(sum(loss_terms(problem, params, cams, stage).values()))
+        return _upper_mpjpe(kpm, params.export(), gt)[("mpjpe", "body")], loss
+
+    (lm, lm_loss), (adam, adam_loss) = run("lm", 20), run("adam", 20)
+    assert lm < 10.0 and lm < 0.5 * adam, (lm, adam)
+    assert lm_loss < adam_loss, (lm_loss, adam_loss)
