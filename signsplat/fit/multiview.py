@@ -1,15 +1,19 @@
 """Multi-view fit: SMPL-X over a sequence and the extrinsics of every camera, jointly.
 
-1. Cameras are initialised without ground truth: each view's PnP (OpenCV SQPnP + LM) of the
-   neutral body's head and torso keypoints (rest pose, mean shape, at the origin) against the
-   median of its first frames' detections. This defines the world frame: the body-anchored frame
-   of the first frames (y up, the signer facing +z). A view PnP cannot solve gets the coarse arc
-   prior from the config.
-2. Gauge: the reference camera (the PnP-solved view with the most observations) is held fixed,
-   which removes the 6-DoF world-frame freedom; scale is set by the body model.
+1. Cameras are initialised without ground truth (config ``camera_init``, default ``auto``):
+   per view the candidates PnP of the neutral body's head/torso keypoints (rest pose, mean
+   shape, at the origin) against the median of its first frames' detections, PnP-RANSAC on
+   every confident detection of those frames, and the coarse arc prior from the config; the
+   rig is chosen by multi-view consistency (leave-one-out triangulation). This defines the
+   world frame: the body-anchored frame of the first frames (y up, the signer facing +z).
+2. Gauge: the reference camera (the initialised view with the most observations) is held fixed,
+   which removes the 6-DoF world-frame freedom. Scale: with free extrinsics a uniform body
+   scale is unobservable (the proxy's beta 0 is one), so the shape prior sets it; the
+   evaluation's similarity alignment absorbs it.
 3. Stages (config ``fit.multiview.stages``) run with Adam: first per chunk of frames, each chunk
    warm-started from the previous chunk's last frame (cameras fixed), then jointly over the
-   whole sequence with betas and the free cameras.
+   whole sequence with betas and the free cameras; the final joint stage is Levenberg-Marquardt
+   over everything (:mod:`signsplat.fit.lm`), which the torso chain's conditioning needs.
 """
 
 from __future__ import annotations
