@@ -48,6 +48,7 @@ class PartValues:
 class ModelConfig:
     pose_dependent: bool = True  # off = static mesh-anchored baseline (no Omega network)
     displacement: bool = True  # eq. 3 displacements of original vertices
+    shading: bool = True  # learned global irradiance of the posed normal (see model docstring)
     hidden: int = 32
     kernel: int = 5
     layers: int = 2
@@ -116,6 +117,7 @@ class TrainConfig:
     lr_color: float = 2.5e-2
     lr_sh_rest: float = 1.25e-3
     lr_network: float = 1.0e-3
+    lr_shading: float = 1.0e-2  # the 27 irradiance coefficients (model.shading)
     finetune_smplx: bool = True
     lr_smplx: float = 1.0e-4
     test_interval: int = 10  # every test_interval-th frame is held out (novel pose)

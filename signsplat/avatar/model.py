@@ -17,6 +17,15 @@ neighbours are spatial neighbours) takes the canonical point and its translation
 point (in the body's root frame) and four zero-initialised heads add pose-dependent residuals to
 scale, rotation, opacity and colour. Scales pass through a sigmoid bounded per part.
 Quaternions are stored ``(w, x, y, z)`` as in gsplat and the 3DGS PLY format.
+
+Shading (switch ``shading``, an addition to the paper): a studio light makes a point darker or
+brighter as the body turns, which a colour fixed per point cannot follow and Omega (whose input
+is positions) learns only slowly. One learnable global irradiance, a 9-coefficient (order-2)
+real spherical-harmonics function of the posed unit normal per colour channel (the classic
+irradiance-environment-map approximation of Lambertian lighting, Ramamoorthi and Hanrahan
+2001), multiplies every point's colour: ``rgb' = gain(n) * rgb``. It starts at gain 1 and costs
+27 parameters; normals are the bary-interpolated vertex normals of the posed mesh (no gradient
+flows into the geometry through them).
 """
 
 from __future__ import annotations
@@ -44,6 +53,28 @@ POINT_BUFFERS = ("anchors", "bary_fixed", "face", "is_original", "learnable", "p
 
 def num_sh_bases(degree: int) -> int:
     return (degree + 1) ** 2
+
+
+def irradiance_basis(n: torch.Tensor) -> torch.Tensor:
+    """Real spherical harmonics up to order 2 of (..., 3) unit vectors -> (..., 9)."""
+    x, y, z = n.unbind(-1)
+    return torch.stack([
+        torch.full_like(x, 0.28209479177387814),
+        0.4886025119029199 * y, 0.4886025119029199 * z, 0.4886025119029199 * x,
+        1.0925484305920792 * x * y, 1.0925484305920792 * y * z,
+        0.31539156525252005 * (3.0 * z * z - 1.0),
+        1.0925484305920792 * x * z, 0.5462742152960396 * (x * x - y * y),
+    ], -1)
+
+
+def shade_sh(sh: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+    """Multiply the RGB that SH coefficients (B, P, K, 3) decode to by ``gain`` (B, P, 3).
+
+    The rasterizer decodes ``rgb = SH_C0 * dc + 0.5 + sum_k rest_k Y_k``; scaling it by g gives
+    ``dc' = g * dc + (g - 1) * 0.5 / SH_C0`` and ``rest' = g * rest``.
+    """
+    dc = gain * sh[:, :, 0] + (gain - 1.0) * (0.5 / SH_C0)
+    return torch.cat([dc[:, :, None], gain[:, :, None] * sh[:, :, 1:]], 2)
 
 
 def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
@@ -199,6 +230,12 @@ class AvatarModel(nn.Module):
                       if cfg.pose_dependent else None)
         self.disp_net = (ConvNet1d(3, cfg.hidden, (3,), cfg.kernel, cfg.layers)
                          if cfg.displacement else None)
+        if cfg.shading:
+            coeffs = torch.zeros(9, 3)
+            coeffs[0] = 1.0 / 0.28209479177387814  # gain 1 everywhere
+            self.irradiance = nn.Parameter(coeffs)
+        else:
+            self.irradiance = None
         self.register_buffer("vertex_order", morton_order(self.template))
         self.register_buffer("point_order", morton_order(pos))
 
@@ -312,6 +349,15 @@ class AvatarModel(nn.Module):
             quat = quat + d_q
             opacity_raw = opacity_raw + d_o[..., 0]
             sh = torch.cat([sh[:, :, :1] + d_c[:, :, None], sh[:, :, 1:]], 2)
+        if self.irradiance is not None:
+            with torch.no_grad():
+                n_v = vertex_normals(v_p.detach(), self.faces)[:, self.anchors]  # (B, P, 3, 3)
+                n_p = (n_v * bary.detach()[None, ..., None]).sum(2)
+                n_p = n_p / n_p.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+            # elementwise product + sum rather than a matmul: BLAS's reduction over B*P points for
+            # the coefficients' gradient is not reproducible run to run, this is
+            gain = (irradiance_basis(n_p)[..., None] * self.irradiance).sum(-2)
+            sh = shade_sh(sh, gain)
         smin = self.cfg.scale_min
         smax = self.scale_max_per_point()[None, :, None]
         scales = smin + (smax - smin) * torch.sigmoid(scale_raw)

@@ -94,7 +94,13 @@ class Regularizer:
     def neighbourhoods(self, model: AvatarModel) -> Neighbourhoods:
         key = (model.num_points, int(model.learnable.sum()), int(model.anchors.sum()))
         if self._nb is None or key != self._key:
-            self._nb = build_neighbourhoods(model.canonical_points(), model.anchors, model.part,
+            # positions that depend only on the point structure (the centre of a densified
+            # point's face, not its learned place on it), so that a run resumed from a
+            # checkpoint rebuilds exactly the neighbourhoods the uninterrupted run cached
+            with torch.no_grad():
+                centre = model.template[model.anchors].mean(1)
+                pts = torch.where(model.learnable[:, None], centre, model.canonical_points())
+            self._nb = build_neighbourhoods(pts, model.anchors, model.part,
                                             model.faces, model.num_vertices, self.cfg.radius,
                                             self.cfg.max_neighbours)
             self._key = key

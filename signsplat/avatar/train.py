@@ -189,7 +189,11 @@ class AvatarTrainer:
                "normal_offset": t.lr_means}
         groups = [{"params": [getattr(self.model, n)], "lr": lrs[n], "name": n}
                   for n in POINT_PARAMS]
-        nets = [p for n, p in self.model.named_parameters() if n not in POINT_PARAMS]
+        nets = [p for n, p in self.model.named_parameters()
+                if n not in POINT_PARAMS and n != "irradiance"]
+        if self.model.irradiance is not None:
+            groups.append({"params": [self.model.irradiance], "lr": t.lr_shading,
+                           "name": "shading"})
         if nets:
             groups.append({"params": nets, "lr": t.lr_network, "name": "networks"})
         if self.smplx.learnable:
