@@ -281,6 +281,18 @@ class AvatarModel(nn.Module):
         """(V, 3) eq. 3 displacement vectors d, |d| bounded per part; None when switched off."""
         if self.disp_net is None:
             return None
+        # d depends on the weights only (not on the pose): without autograd (rendering a
+        # sequence) it is computed once and reused until a weight changes
+        key = tuple(p._version for p in self.disp_net.parameters()) + (
+            tuple(id(p) for p in self.disp_net.parameters()),)
+        cached = getattr(self, "_disp_cache", None)
+        if not torch.is_grad_enabled() and cached is not None and cached[0] == key:
+            return cached[1]
+        d = self._displacement()
+        self._disp_cache = (key, d) if not torch.is_grad_enabled() else None
+        return d
+
+    def _displacement(self) -> torch.Tensor:
         order = self.vertex_order
         x = ((self.template - self.center) / self.extent)[order].T[None]
         raw = self.disp_net(x)[0][0]  # (V, 3) in sequence order

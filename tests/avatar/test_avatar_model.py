@@ -113,3 +113,17 @@ def test_sh_schedule():
     assert sh_degree_at(74, 100, 2, 0.75) == 0
     assert sh_degree_at(75, 100, 2, 0.75) == 2
     assert sh_degree_at(99, 100, 0, 0.75) == 0
+
+
+def test_displacement_cached_without_autograd_until_a_weight_changes(tiny_body):
+    model, _ = _model(tiny_body)
+    with torch.no_grad():
+        model.disp_net.head.weight.normal_(0, 0.5)
+        a = model.displacement()
+        assert model.displacement() is a  # reused while rendering
+        model.disp_net.head.weight.mul_(2.0)  # an in-place update (as the optimiser does)
+        b = model.displacement()
+    assert b is not a and not torch.allclose(a, b)
+    c = model.displacement()  # with autograd: always recomputed, differentiable
+    assert c.requires_grad
+    torch.testing.assert_close(c.detach(), b)
