@@ -79,11 +79,13 @@ rule sweep_table:
 
 
 rule ablations:
+    localrule: True
     input:
         expand(rules.ablation_table.output, scene=ABLATION_SCENE),
 
 
 rule sweep:
+    localrule: True
     input:
         expand(rules.sweep_table.output, scene=SWEEP_SCENE),
 
