@@ -35,6 +35,7 @@ class UpsampleConfig:
     edge_length: float = 0.02  # m; edges longer than this get points along them
     face_area: float = 1.5e-4  # m^2; faces larger than this get a point at their centre
     max_rounds: int = 1
+    interior: str = "grid"  # large faces: "centre" (the paper's centroid) or a barycentric grid
 
 
 @dataclass

@@ -71,7 +71,7 @@ def build_model(body, betas: torch.Tensor, cfg: AvatarConfig) -> AvatarModel:
     """Upsample the canonical mesh of ``body`` (shape ``betas``) and build the avatar."""
     template = canonical_template(body, betas)
     points = upsample_mesh(template, body.faces, body.part_labels, cfg.upsample.edge_length,
-                           cfg.upsample.face_area) if cfg.upsample.max_rounds else \
+                           cfg.upsample.face_area, cfg.upsample.interior) if cfg.upsample.max_rounds else \
         upsample_mesh(template, body.faces, body.part_labels, float("inf"), float("inf"))
     return AvatarModel(points, body.faces, body.lbs_weights, template, cfg.model)
 

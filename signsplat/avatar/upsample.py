@@ -1,5 +1,10 @@
 """Canonical mesh upsampling (paper 3.2): points at the centres of large faces and along long edges.
 
+With ``interior="grid"`` a large face gets, instead of its centre alone, every interior point of
+a barycentric grid whose step is the face's longest edge divided by ``n = ceil(longest /
+edge_length)`` (the centre is the grid's only interior point when n = 3): on a coarse mesh the
+inside of a big triangle is then as densely covered as its edges, which texture needs.
+
 Every point of the avatar is a barycentric combination of three original mesh vertices
 (``anchors``), so it follows the body model exactly: original vertices are ``(v, v, v)`` with
 weights ``(1, 0, 0)``; a point on an edge ``(a, b)`` is ``(a, b, a)`` with ``(1 - t, t, 0)``; a
@@ -54,7 +59,7 @@ def _unique_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def upsample_mesh(vertices: np.ndarray | torch.Tensor, faces: np.ndarray | torch.Tensor,
                   part_labels: np.ndarray | torch.Tensor, edge_length: float,
-                  face_area: float) -> PointAnchors:
+                  face_area: float, interior: str = "centre") -> PointAnchors:
     """Anchored points of the upsampled canonical mesh.
 
     vertices: (V, 3) canonical positions in metres; faces: (F, 3) int; part_labels: (V,) int.
@@ -88,7 +93,19 @@ def upsample_mesh(vertices: np.ndarray | torch.Tensor, faces: np.ndarray | torch
     tri = v[f]
     areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     big = np.nonzero(areas > face_area)[0]
-    if len(big):
+    if interior not in ("centre", "grid"):
+        raise ValueError(f"interior must be 'centre' or 'grid', got {interior!r}")
+    if interior == "grid" and len(big):
+        longest = np.linalg.norm(tri[big] - tri[big][:, [1, 2, 0]], axis=2).max(1)
+        n = np.maximum(np.ceil(longest / edge_length).astype(np.int64), 3)
+        for m in np.unique(n):
+            sel = big[n == m]
+            ij = np.array([(i, j, m - i - j) for i in range(1, m) for j in range(1, m - i)
+                           if m - i - j >= 1], dtype=np.float64) / m  # (Q, 3) interior grid
+            anchors.append(np.repeat(f[sel], len(ij), 0))
+            bary.append(np.tile(ij, (len(sel), 1)))
+            face_ix.append(np.repeat(sel, len(ij)))
+    elif len(big):
         anchors.append(f[big])
         bary.append(np.full((len(big), 3), 1.0 / 3.0))
         face_ix.append(big)

@@ -57,3 +57,29 @@ def test_weights_and_parts_are_interpolated():
     torch.testing.assert_close(pw[: len(v)], w)
     heavy = pts.anchors[torch.arange(len(pts)), pts.bary.argmax(1)]
     assert torch.equal(pts.part, parts[heavy])
+
+
+def test_grid_interior_fills_large_faces_at_the_edge_spacing():
+    # one right triangle with legs of 10 cm: at 2.5 cm the longest edge (14.1 cm) gives n = 6,
+    # so (n-1)(n-2)/2 = 10 interior grid points; "centre" gives the centroid alone
+    v = torch.tensor([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    f = torch.tensor([[0, 1, 2]])
+    parts = torch.zeros(3, dtype=torch.long)
+    centre = upsample_mesh(v, f, parts, 0.025, 1e-4, "centre")
+    grid = upsample_mesh(v, f, parts, 0.025, 1e-4, "grid")
+    n_edge = len(centre) - 3 - 1
+    assert len(grid) == 3 + n_edge + 10
+    inner = grid.positions(v)[3 + n_edge:]
+    b = grid.bary[3 + n_edge:]
+    assert bool((b > 0).all()) and torch.allclose(b.sum(1), torch.ones(len(b)))
+    assert bool((grid.face[3 + n_edge:] == 0).all())
+    # interior points are distinct and no closer to each other than the grid step (14.1/6 cm
+    # along the hypotenuse direction, 10/6 cm along the legs)
+    d = torch.cdist(inner, inner) + torch.eye(len(inner))
+    assert float(d.min()) > 0.1 / 6 - 1e-6
+    try:
+        upsample_mesh(v, f, parts, 0.025, 1e-4, "spiral")
+    except ValueError as err:
+        assert "spiral" in str(err) and "grid" in str(err)
+    else:
+        raise AssertionError("an unknown interior mode must fail")
