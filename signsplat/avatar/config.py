@@ -119,6 +119,8 @@ class TrainConfig:
     lr_sh_rest: float = 1.25e-3
     lr_network: float = 1.0e-3
     lr_shading: float = 1.0e-2  # the 27 irradiance coefficients (model.shading)
+    color_init: str = "images"  # "images": median observed colour per point; "constant"
+    color_init_images: int = 24  # training images sampled for it
     finetune_smplx: bool = True
     lr_smplx: float = 1.0e-4
     test_interval: int = 10  # every test_interval-th frame is held out (novel pose)

@@ -30,6 +30,7 @@ from signsplat.avatar.data import SMPLX_BLOCKS, SceneData, split_frames, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr
 from signsplat.avatar.model import POINT_PARAMS, AvatarModel, sh_degree_at
 from signsplat.avatar.regions import part_box
+from signsplat.avatar.colour_init import initialise_colours, observed_colours, sample_pairs
 from signsplat.avatar.regularize import Regularizer, displacement_terms
 from signsplat.avatar.strategy import MeshDensifyStrategy
 from signsplat.avatar.upsample import upsample_mesh
@@ -169,6 +170,13 @@ class AvatarTrainer:
                                        device=self.device)
         self.smplx = SmplxParams(data.smplx, cfg.train.finetune_smplx).to(self.device)
         self.model = build_model(self.body, self.smplx.betas.detach(), cfg).to(self.device)
+        self.colour_init_seen = 0
+        if cfg.train.color_init == "images" and cfg.train.color_init_images > 0:
+            pairs = sample_pairs(self.split.train_frames, self.split.train_views,
+                                 cfg.train.color_init_images, cfg.train.seed)
+            rgb, count = observed_colours(self.model, self.body, self.smplx.get, data, pairs,
+                                          self.rasterize, cfg.train.render_backend)
+            self.colour_init_seen = initialise_colours(self.model, rgb, count)
         self.strategy = MeshDensifyStrategy.from_config(cfg.strategy)
         self.strategy_state = self.strategy.initialize_state()
         self.regularizer = Regularizer(cfg.regularize)

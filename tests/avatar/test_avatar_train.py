@@ -65,7 +65,7 @@ def _params(model):
 
 def test_training_improves_psnr_and_writes_a_log(scene, tmp_path):
     body, data = scene
-    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 30}))
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 30, "color_init": "constant"}))
     assert list(data.frames[tr.split.test_frames]) == [2, 5]
     log = tr.run(progress=False)
     assert np.isfinite(log["loss"]).all()
@@ -157,10 +157,12 @@ def test_switches_really_remove_their_computation(scene, monkeypatch):
 
     # accumulation off: one render per optimiser step (on: accumulate_poses)
     tr = AvatarTrainer(body, data, _cfg(train={"accumulate": False}), rasterize=counting)
+    calls.clear()  # renders of the colour initialisation
     tr.train_step()
     assert len(calls) == 1
     calls.clear()
     tr = AvatarTrainer(body, data, _cfg(train={"accumulate_poses": 3}), rasterize=counting)
+    calls.clear()
     tr.train_step()
     assert len(calls) == 3
 
@@ -213,3 +215,28 @@ def test_evaluation_table_images_and_far_view_warning(scene, tmp_path, caplog):
     assert len(list((tmp_path / "img").glob("*.png"))) == 2
     full = df[(df.split == "novel_pose") & (df.part == "full") & (df.metric == "psnr")]
     assert (full.value > 10).all()
+
+
+def test_colour_init_from_images_starts_closer_to_the_images(scene):
+    body, data = scene
+    grey = AvatarTrainer(body, data, _cfg(train={"color_init": "constant"}))
+    init = AvatarTrainer(body, data, _cfg(train={"color_init": "images",
+                                                 "color_init_images": 12}))
+    assert grey.colour_init_seen == 0 and 0 < init.colour_init_seen < init.model.num_points
+
+    def l1(tr):
+        errs = []
+        with torch.no_grad():
+            for f in tr.split.train_frames:
+                out, g = tr.pose(torch.tensor([int(f)]), 0)
+                for v in range(3):
+                    col, _, _ = render_gaussians(rasterization, g, 0, data.viewmats[v:v + 1],
+                                                 data.Ks[v:v + 1], SIZE, SIZE, torch.ones(3),
+                                                 "cpu")
+                    gt = data.images[v, int(f)].float() / 255
+                    errs.append(float((col[0] - gt).abs().mean()))
+        return np.mean(errs)
+
+    assert l1(init) < 0.8 * l1(grey), (l1(init), l1(grey))
+    unseen = init.model.sh_dc[:, 0].sub(grey.model.sh_dc[:, 0]).abs().sum(-1) == 0
+    assert bool(torch.isfinite(init.model.sh_dc).all()) and bool(unseen.any())
