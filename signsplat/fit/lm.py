@@ -216,11 +216,19 @@ class _FrameCost:
         """sqrt(T w_shape) betas: the shape prior on the sum-over-frames scale."""
         return np.sqrt(self.T * self.w.shape) * self.betas.reshape(-1)
 
+    def camera_residual(self) -> torch.Tensor:
+        """sqrt(T w_camera_anchor) (rotvec, dt) of the free cameras (their change from init)."""
+        v = self.free_views
+        return np.sqrt(self.T * self.w.camera_anchor) * torch.cat(
+            [self.rotvec[v].reshape(-1), self.dt[v].reshape(-1)])
+
     def total(self, x: torch.Tensor) -> torch.Tensor:
-        """Exact objective of the whole sequence (sum over frames, + T x the shape prior)."""
+        """Exact objective of the whole sequence (sum over frames, + T x the global priors)."""
         frames = torch.arange(self.T)
         feats, cost, head = self.outputs(x, frames, None)
-        return cost.sum() + self.smooth_cost(feats, head) + (self.shape_residual() ** 2).sum()
+        shape = (self.shape_residual() ** 2).sum() if self.use_betas else 0.0
+        return cost.sum() + self.smooth_cost(feats, head) + shape + \
+            (self.camera_residual() ** 2).sum()
 
 
 def _irls_weights(kernel: str, r2: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -299,6 +307,10 @@ def _normal_equations(fc: _FrameCost, x: torch.Tensor, chunk: int):
             D += (Jy[:, :head].transpose(1, 2) @ Jy[:, :head]).sum(0)
             gy += (Jy[:, :head].transpose(1, 2) @ rh[..., None])[..., 0].sum(0)
             Gy.append(Jy[:, head:])
+    if fc.free_views and fc.w.camera_anchor > 0:  # cameras' pull towards their init
+        nc = 6 * len(fc.free_views)
+        D[:nc, :nc] += fc.T * fc.w.camera_anchor * torch.eye(nc, dtype=x.dtype)
+        gy[:nc] += np.sqrt(fc.T * fc.w.camera_anchor) * fc.camera_residual()
     if fc.use_betas:  # shape prior
         nb = fc.betas.numel()
         D[Y - nb:, Y - nb:] += fc.T * fc.w.shape * torch.eye(nb, dtype=x.dtype)

@@ -240,7 +240,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     up = rig_up_direction(solved_R) if mv["level_cameras"] else None
     log.info("world vertical for the upright prior: %s",
              "body frame +y" if up is None else np.round(up, 4).tolist())
-    problem = make_problem(kpm, obs, cfg, frames, weights={"upright": mv["upright_weight"]},
+    weights = {"upright": mv["upright_weight"], "camera_anchor": mv["camera_anchor_weight"]}
+    problem = make_problem(kpm, obs, cfg, frames, weights=weights,
                            dtype=dtype, device=device, up=up, level_cameras=up is not None)
     history = {}
     for st_cfg in mv["stages"]:

@@ -33,6 +33,7 @@ class Weights:
     behind_camera: float = 100.0  # m^-2 on depth below the near plane
     anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
     upright: float = 0.0  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
+    camera_anchor: float = 0.0  # rad^-2 / m^-2 on the free cameras' change from their init
 
     @classmethod
     def from_config(cls, cfg: dict | None) -> "Weights":

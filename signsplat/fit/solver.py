@@ -138,6 +138,9 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         contig = None if problem.contiguous is None else _contig(problem.contiguous, sel,
                                                                  kp3d.shape[0])
         terms["smooth"] = obj.smoothness(kp3d, _pose_vector(params, sel), contig, w)
+    if w.camera_anchor > 0 and "cameras" in stage.groups:
+        terms["camera_anchor"] = w.camera_anchor * (
+            (cams.rotvec * cams.free) ** 2 + (cams.dt * cams.free) ** 2).sum()
     if problem.anchor:
         terms["anchor"] = obj.anchor(sub, {k: v[sel] for k, v in problem.anchor.items()}, w)
     return terms

@@ -287,10 +287,13 @@ def test_camera_init_auto_survives_noise_outliers_and_a_wrong_prior(kpm):
     assert errs["auto"]["rotation_deg_max"] < 12.0
 
 
-def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm):
+@pytest.mark.parametrize("anchor,max_deg", [(0.0, 1.5), (None, 2.5)])
+def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm, anchor, max_deg):
     """Noisy, dropped, outlying and side-swapped keypoints with a wrong rig prior: the default
     auto init + Adam stages + the Levenberg-Marquardt joint stage recover the cameras to ~1
-    degree and the upper body to a few centimetres (8 frames, a few seconds)."""
+    degree and the upper body to a few centimetres (8 frames, a few seconds). The default
+    camera anchor (which keeps biased detections from dragging the rig away) costs a little
+    here, where the initial rig is ~5 degrees off and the keypoints are unbiased."""
     from signsplat.fit.cli import clean_all
 
     T, V = 8, 5
@@ -298,6 +301,8 @@ def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm):
     rig = synthetic_rig(V, arc=150)
     cfg = _cfg({**json.loads(json.dumps(FAST_MV)), "min_score": 0.3})
     cfg["multiview"]["camera_prior"] = {"arc_degrees": 120, "distance": 2.6}
+    if anchor is not None:
+        cfg["multiview"]["camera_anchor_weight"] = anchor
     cfg["multiview"]["stages"].append({"name": "joint", "iterations": 12, "lr": 1.0,
                                        "optimizer": "lm", "sigma_px": 10,
                                        "groups": ["root", "body", "hands", "face", "betas",
@@ -305,7 +310,7 @@ def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm):
     obs, _ = clean_all(_corrupt(kpm, gt, rig), np.arange(T) / 25.0, rig.height, cfg)
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
     cam = E.camera_errors(res.rig, rig)
-    assert cam["rotation_deg_mean"] < 1.5 and cam["centre_m_mean"] < 0.03
+    assert cam["rotation_deg_mean"] < max_deg and cam["centre_m_mean"] < 0.03
     sim, _ = E.gauge_alignment(res.rig, rig)
     err = _upper_mpjpe(kpm, res.params, gt, sim)
     assert err[("mpjpe", "upper_body")] < 25.0
