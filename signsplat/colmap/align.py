@@ -3,7 +3,8 @@
 A reconstruction (COLMAP, or a camera solve) lives in its own frame and scale. We find the
 similarity ``x_gt = s * A @ x_est + b`` (Umeyama 1991, least squares on the camera centres;
 :mod:`signsplat.geometry.align`, shared with the fit's evaluation) and report per camera
-the rotation error (degrees) and the centre error (metres, in the ground truth's units). When the centres cannot fix a similarity (fewer than 3 cameras, or centres
+the rotation error (degrees) and the centre error (metres, in the ground truth's units).
+When the centres cannot fix a similarity (fewer than 3 cameras, or centres
 that are coincident or collinear) the rotation ``A`` comes from the camera orientations
 (chordal mean of ``R_gt_i^T R_est_i``) and ``s, b`` from the centres by least squares given ``A``.
 
