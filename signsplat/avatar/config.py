@@ -58,6 +58,7 @@ class ModelConfig:
     scale_max: PartValues = field(default_factory=lambda: PartValues(0.02, 0.008, 0.004))
     displacement_limit: PartValues = field(default_factory=lambda: PartValues(0.02, 0.01, 0.003))
     init_opacity: float = 0.9
+    flat_init: float = 0.2  # > 0: start as discs in the surface, normal scale = this x in-plane
     init_color: tuple[float, float, float] = (0.5, 0.5, 0.5)
 
 

@@ -170,6 +170,19 @@ class PosedGaussians:
     sh_degree: int
 
 
+def _quat_from_z(n: torch.Tensor) -> torch.Tensor:
+    """(P, 4) xyzw unit quaternions of the shortest rotations taking +z to the (P, 3) vectors
+    ``n`` (identity where ``n`` is zero; the half-turn about x where ``n`` points along -z)."""
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w = 1.0 + n[:, 2]
+    q = torch.stack([-n[:, 1], n[:, 0], torch.zeros_like(w), w], -1)  # z x n, 1 + z.n
+    flip = w < 1e-6
+    q[flip] = torch.tensor([1.0, 0.0, 0.0, 0.0])
+    zero = n.norm(dim=-1) < 0.5
+    q[zero] = torch.tensor([0.0, 0.0, 0.0, 1.0])
+    return q / q.norm(dim=-1, keepdim=True)
+
+
 def _logit(p: torch.Tensor) -> torch.Tensor:
     p = p.clamp(1e-4, 1 - 1e-4)
     return torch.log(p) - torch.log1p(-p)
@@ -218,8 +231,17 @@ class AvatarModel(nn.Module):
         frac = ((init_scale - cfg.scale_min) / (smax - cfg.scale_min)).clamp(0.02, 0.9)
         k = num_sh_bases(cfg.sh_degree)
         color = torch.tensor(cfg.init_color, dtype=torch.float32)
-        self.scale_raw = nn.Parameter(_logit(frac)[:, None].repeat(1, 3))
-        self.quat = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1))
+        raw = _logit(frac)[:, None].repeat(1, 3)
+        if cfg.flat_init > 0:
+            # discs in the surface: local z along the canonical normal, thin along it
+            normal = (vertex_normals(self.template[None], self.faces)[0][points.anchors]
+                      * points.bary[..., None]).sum(1)
+            quat = xyzw_to_wxyz(_quat_from_z(normal))
+            raw[:, 2] = _logit(frac * cfg.flat_init)
+        else:
+            quat = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1)
+        self.scale_raw = nn.Parameter(raw)
+        self.quat = nn.Parameter(quat)
         self.opacity_raw = nn.Parameter(_logit(torch.full((n, 1), cfg.init_opacity)))
         self.sh_dc = nn.Parameter(((color - 0.5) / SH_C0).repeat(n, 1, 1))
         self.sh_rest = nn.Parameter(torch.zeros(n, k - 1, 3))

@@ -127,3 +127,21 @@ def test_displacement_cached_without_autograd_until_a_weight_changes(tiny_body):
     c = model.displacement()  # with autograd: always recomputed, differentiable
     assert c.requires_grad
     torch.testing.assert_close(c.detach(), b)
+
+
+def test_flat_init_puts_discs_in_the_surface(tiny_body):
+    flat, cfg = _model(tiny_body)
+    ball, _ = _model(tiny_body, model={"flat_init": 0.0})
+    g = _pose(flat, tiny_body, {"betas": torch.zeros(1, 10)})
+    from signsplat.avatar.model import vertex_normals
+    n = (vertex_normals(tiny_body.v_template[None], flat.faces)[0][flat.anchors]
+         * flat.bary_fixed[..., None]).sum(1)
+    n = n / n.norm(dim=-1, keepdim=True)
+    R = roma.unitquat_to_rotmat(wxyz_to_xyzw(g.quats[0]))
+    thin_axis = R[torch.arange(len(n)), :, g.scales[0].argmin(-1)]
+    ok = n.norm(dim=-1) > 0.5
+    assert float((thin_axis[ok] * n[ok]).sum(-1).abs().min().detach()) > 0.99  # thin along n
+    ratio = g.scales[0].min(-1).values / g.scales[0].max(-1).values
+    assert float(ratio.max()) < 0.5
+    gb = _pose(ball, tiny_body, {"betas": torch.zeros(1, 10)})
+    torch.testing.assert_close(gb.scales[0].min(-1).values, gb.scales[0].max(-1).values)
