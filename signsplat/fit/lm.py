@@ -155,14 +155,15 @@ class _FrameCost:
             transl=b["transl"])
         return kp
 
-    def outputs(self, x: torch.Tensor, frames: torch.Tensor, irls: torch.Tensor | None
-                ) -> tuple[torch.Tensor, torch.Tensor, int]:
+    def outputs(self, x: torch.Tensor, frames: torch.Tensor, irls: torch.Tensor | None,
+                kp: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, int]:
         """Per-frame outputs of ``x (B,P)`` (frames ``frames (B,)``).
 
         Returns (features (B,M): IRLS-weighted data residuals, near-plane and prior residuals,
         then the smoothness features sqrt(w_k) * keypoints and sqrt(w_p) * pose vector;
         per-frame robust cost without smoothness (B,); number of leading residual entries).
         ``irls (V,B,133)``: least-squares weights of the data residuals (None: from these).
+        ``kp (B,133,3)``: the keypoints of ``x`` when already known (camera perturbations).
         """
         from signsplat.body import hand_limits as hl
         from signsplat.fit.robust import kernel as robust_kernel
@@ -170,7 +171,8 @@ class _FrameCost:
         w = self.w
         B = len(frames)
         b = self.unpack(x, frames)
-        kp = self.keypoints(b)
+        if kp is None:
+            kp = self.keypoints(b)
         uv, z = project(kp, self.K, self.R, self.t)  # (V,B,133,2), (V,B,133)
         obs = self.obs[:, frames]
         d = uv - obs[..., :2]
@@ -259,14 +261,18 @@ def _jacobian(fc: _FrameCost, x: torch.Tensor, frames: torch.Tensor, irls: torch
 
 def _global_jacobian(fc: _FrameCost, x: torch.Tensor, frames: torch.Tensor,
                      irls: torch.Tensor, f0: torch.Tensor, step: float = 1e-6) -> torch.Tensor:
-    """Forward-difference Jacobian (B,M,Y) of the per-frame features in the global unknowns."""
+    """Forward-difference Jacobian (B,M,Y) of the per-frame features in the global unknowns.
+
+    The camera columns reuse the body's keypoints (only the projection changes)."""
     y0 = fc.pack_global()
     J = torch.empty(len(frames), f0.shape[1], len(y0), dtype=x.dtype)
+    n_cam = 6 * len(fc.free_views)
+    kp0 = fc.keypoints(fc.unpack(x, frames)) if n_cam else None
     for k in range(len(y0)):
         y = y0.clone()
         y[k] += step
         fc.set_global(y)
-        f, _, _ = fc.outputs(x, frames, irls)
+        f, _, _ = fc.outputs(x, frames, irls, kp0 if k < n_cam else None)
         J[:, :, k] = (f - f0) / step
     fc.set_global(y0)
     return J
@@ -370,7 +376,7 @@ def _solve(band, g, C, D, gy, lam):
     return dx, dy
 
 
-def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 16
+def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 64
            ) -> list[float]:
     """Levenberg-Marquardt on the groups of ``stage`` over the whole sequence.
 
