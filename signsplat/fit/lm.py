@@ -19,8 +19,8 @@ float64.
 
 Objective: the same terms and weights as :mod:`signsplat.fit.objective` summed over frames
 (i.e. ``T`` times the stages' loss): robust reprojection, near plane, body-pose/jaw/expression/
-hand priors, upright, the accelerations of the 3D keypoints and pose vectors, and the shape
-prior.
+hand priors, upright, the single-view anchor, the accelerations of the 3D keypoints and pose
+vectors, the shape prior and the camera anchor.
 """
 
 from __future__ import annotations
@@ -85,6 +85,8 @@ class _FrameCost:
         self.obs = problem.obs.to(dt)  # (V,T,133,3)
         self.kpw = obj.part_weight_vector(stage.parts, dtype=dt, device=self.obs.device)
         self.sigma = problem.sigma_px if stage.sigma_px is None else stage.sigma_px
+        self.anchor = ({k: v.to(dt) for k, v in problem.anchor.items()}
+                       if self.w.anchor > 0 else {})
         self.kernel = problem.kernel
         self.pose_w = obj.body_pose_weights(self.w, dtype=dt, device=self.obs.device)
         self.pose_mean = (torch.zeros(63, dtype=dt) if problem.pose_mean is None
@@ -198,6 +200,9 @@ class _FrameCost:
             pelvis_up = roma.rotvec_to_rotmat(b["global_orient"])[..., :, 1]
             up = self.up if self.up is not None else torch.tensor([0.0, 1.0, 0.0], dtype=d.dtype)
             quad.append(np.sqrt(w.upright) * (pelvis_up - up))
+        for name in ("global_orient", "body_pose", "transl"):  # single-view refinement
+            if name in self.anchor:
+                quad.append(np.sqrt(w.anchor) * (b[name] - self.anchor[name][frames]))
         quad = torch.cat(quad, dim=1)
         cost = robust + (quad ** 2).sum(1)
         feats = [data, quad]
