@@ -353,3 +353,42 @@ def test_lm_stage_reaches_the_exact_solution_from_a_tilted_pelvis(kpm):
     (lm, lm_loss), (adam, adam_loss) = run("lm", 20), run("adam", 20)
     assert lm < 10.0 and lm < 0.5 * adam, (lm, adam)
     assert lm_loss < adam_loss, (lm_loss, adam_loss)
+
+
+def test_lm_objective_equals_the_stage_loss(kpm):
+    """The LM stage minimises exactly the Adam stages' objective (times T): every term,
+    including smoothness, upright, hand prior, shape prior and the camera anchor."""
+    from signsplat.fit.bodyfit import FitParams
+    from signsplat.fit.cameras import CameraParams
+    from signsplat.fit.lm import _FrameCost
+    from signsplat.fit.solver import Stage, loss_terms, make_problem
+
+    T, V = 5, 3
+    gt = random_motion(T, seed=8)
+    rig = synthetic_rig(V, arc=120)
+    obs = observe(kpm, gt, rig, noise_px=3.0)
+    cfg = _cfg({})
+    rng = np.random.default_rng(0)
+    init = {k: np.asarray(v) + rng.normal(0, 0.05, np.shape(v)) for k, v in gt.items()
+            if k not in ("leye_pose", "reye_pose", "betas")}
+    init["betas"] = gt["betas"][:1]
+    params = FitParams(T, 10, 10, init=init)
+    cams = CameraParams(rig, fixed=[0])
+    with torch.no_grad():
+        cams.rotvec[1:] = 0.02
+        cams.dt[1:] = 0.01
+    problem = make_problem(kpm, obs, cfg, np.arange(T),
+                           weights={"upright": 100.0, "camera_anchor": 50.0},
+                           up=np.array([0.0, 1.0, 0.0]))
+    stage = Stage.from_config({"name": "j", "iterations": 1, "lr": 1.0, "optimizer": "lm",
+                               "sigma_px": 5.0, "parts": {"face": 0.5},
+                               "groups": ["root", "body", "hands", "face", "betas",
+                                          "cameras"]})
+    with torch.no_grad():
+        want = float(sum(loss_terms(problem, params, cams, stage).values())) * T
+        fc = _FrameCost(problem, params, cams, stage,
+                        ["global_orient", "transl", "body_pose", "jaw_pose", "expression",
+                         "left_free", "right_free"], ["cameras", "betas"])
+        fc.set_global(fc.pack_global())
+        got = float(fc.total(fc.pack()))
+    assert got == pytest.approx(want, rel=2e-4)
