@@ -170,10 +170,11 @@ def simulate_training_scenes(tcfg, body: str, glosses: str, scenes_dir: Path,
     from signsplat.synth.glosses import load_gloss_library
     from signsplat.synth.simulate import simulate_scene
 
-    names = sorted(g for g, clip in load_gloss_library(glosses).items()
-                   if getattr(clip, "kind", "sign") != "letter")
+    library = load_gloss_library(glosses)
+    names = sorted(g for g, clip in library.items() if getattr(clip, "kind", "sign") != "letter")
+    letters = sorted(g for g, clip in library.items() if getattr(clip, "kind", "") == "letter")
     out = []
-    for spec in training_scene_specs(tcfg.scenes, tcfg.seed, names):
+    for spec in training_scene_specs(tcfg.scenes, tcfg.seed, names, letters):
         sim = scenes_dir / spec["name"] / "sim"
         spec_file = sim / "spec.json"
         text = json.dumps(spec, sort_keys=True)

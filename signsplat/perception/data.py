@@ -172,17 +172,43 @@ def heatmap_targets(pts: np.ndarray, vis: np.ndarray, out_hw: tuple[int, int], s
 
 # --- segmentation samples ------------------------------------------------------------------
 
+def random_background(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """A random backdrop (H, W, 3) uint8: a flat colour (half of them near-neutral greys), a
+    linear gradient between two colours, or smooth blotches (a coarse random grid upsampled)."""
+    def colour():
+        if rng.random() < 0.5:
+            return np.full(3, rng.uniform(20, 245)) + rng.normal(0, 6, 3)
+        return rng.uniform(0, 255, 3)
+
+    kind = rng.random()
+    if kind < 0.5:
+        bg = np.broadcast_to(colour(), (h, w, 3)).astype(np.float32)
+    elif kind < 0.75:
+        t = np.linspace(0, 1, h if rng.random() < 0.5 else w, dtype=np.float32)
+        t = t[:, None, None] if t.size == h else t[None, :, None]
+        bg = np.broadcast_to(colour() * (1 - t) + colour() * t, (h, w, 3)).astype(np.float32)
+    else:
+        n = int(rng.integers(3, 9))
+        grid = (np.full((n, n, 3), colour()) + rng.normal(0, 25, (n, n, 3))).astype(np.float32)
+        bg = cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC)
+    return np.clip(bg, 0, 255).astype(np.uint8)
+
+
 def segmentation_sample(fs: FrameSet, i: int, out_hw: tuple[int, int],
                         rng: np.random.Generator, augment: bool = True,
-                        negative_rate: float = 0.05):
+                        negative_rate: float = 0.05, background_rate: float = 0.0):
     """One augmented frame: image (H, W, 3) uint8 and mask (H, W) float32 0/1.
 
     Random scale/shift/rotation/flip; a few samples show only background (a person-free
-    region of the frame blown up to full size) with an empty mask.
+    region of the frame blown up to full size) with an empty mask. With probability
+    ``background_rate`` the pixels outside the ground-truth mask are replaced by
+    :func:`random_background` first (no draws are made when the rate is 0).
     """
     img, mask = fs.images[i], fs.masks[i]
     h0, w0 = img.shape[:2]
     h, w = out_hw
+    if augment and background_rate > 0 and rng.random() < background_rate:
+        img = np.where(mask[..., None] > 0, img, random_background(h0, w0, rng))
     if augment and rng.random() < negative_rate:
         cols = np.flatnonzero(mask.any(0))
         if cols.size and (cols[0] > w0 // 6 or w0 - cols[-1] > w0 // 6):

@@ -5,6 +5,10 @@ sized for 2 CPU cores. Their exported ONNX graphs follow the stage contracts exa
 
 - :class:`TinySegmenter`: (N, 3, H, W) normalised RGB (H, W multiples of 16) -> alpha
   (N, 1, H, W) = sigmoid(logit). ``forward_logits`` is used for training.
+- :class:`CascadeSimCC` (the shipped keypoint model): a :class:`TinySimCC` coarse stage on
+  the crop pooled 2x, then both hands refined by :class:`HandNet` on crops resampled from the
+  full-resolution input inside the graph; outputs are SimCC vectors peaked at each keypoint's
+  sub-cell location, scaled by its probability (same contract, same decoding).
 - :class:`TinySimCC`: (N, 3, H, W) normalised RGB crop -> ``simcc_x`` (N, K, W*r) and
   ``simcc_y`` (N, K, H*r) with r = 2. Internally it predicts a 2D heatmap of logits at stride
   4, (N, K, H/4, W/4), trained with per-pixel BCE against Gaussians (peak 1; all zero for
@@ -179,3 +183,183 @@ def export_onnx(model: nn.Module, path, input_hw: tuple[int, int], output_names:
             if a.shape != tuple(b.shape) or err > atol:
                 raise RuntimeError(f"{path}: ONNX output {name} differs from PyTorch "
                                    f"(shape {a.shape} vs {tuple(b.shape)}, max error {err:.2e})")
+
+
+# --- cascade: coarse whole-body stage + hand refinement, one graph, SimCC outputs ----------
+
+HAND_SLICES = ((91, 112), (112, 133))  # COCO-WholeBody left hand, right hand
+
+
+def peak_subcell(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Heatmap logits (N, K, H, W) -> peak cell coordinates x, y (N, K) with sub-cell offsets
+    and the peak probability (N, K).
+
+    The offset fits a parabola to log-sigmoid(logits) through the arg-max cell and its two
+    neighbours along each axis (exact for a Gaussian peak), clamped to half a cell; on a
+    border cell the offset across that border is 0.
+    """
+    n, k, h, w = logits.shape
+    flat = logits.flatten(2)
+    idx = flat.argmax(-1, keepdim=True)  # (N, K, 1)
+    iy = torch.div(idx, w, rounding_mode="floor")
+    ix = idx - iy * w
+    logp = F.logsigmoid(flat)
+
+    def at(dx: int, dy: int) -> torch.Tensor:
+        jx = (ix + dx).clamp(0, w - 1)
+        jy = (iy + dy).clamp(0, h - 1)
+        return torch.gather(logp, 2, jy * w + jx)[..., 0]
+
+    c = at(0, 0)
+
+    def offset(lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+        den = (lo - 2 * c + hi).clamp(max=-1e-4)
+        return (-0.5 * (hi - lo) / den).clamp(-0.5, 0.5)
+
+    def pair(lo: torch.Tensor, hi: torch.Tensor, i: torch.Tensor, n_cells: int):
+        # a missing neighbour at the border mirrors the other one (offset 0 there)
+        i = i[..., 0]
+        return torch.where(i <= 0, hi, lo), torch.where(i >= n_cells - 1, lo, hi)
+
+    x = ix[..., 0].to(logits.dtype) + offset(*pair(at(-1, 0), at(1, 0), ix, w))
+    y = iy[..., 0].to(logits.dtype) + offset(*pair(at(0, -1), at(0, 1), iy, h))
+    return x, y, c.exp()
+
+
+def simcc_profile(coord: torch.Tensor, score: torch.Tensor, bins: int, ratio: int,
+                  sigma: float = 0.75) -> torch.Tensor:
+    """(N, K) pixel coordinates and scores -> (N, K, bins) SimCC vectors.
+
+    Bin b stands for pixel b / ratio (the rtmlib/MMPose decoding); the vector is a Gaussian
+    of ``sigma`` pixels around ``coord``, scaled so its maximum equals ``score``: arg-max
+    decoding returns the coordinate to within half a bin and max decoding the score.
+    """
+    grid = torch.arange(bins, dtype=coord.dtype) / ratio
+    g = torch.exp(-0.5 * ((grid - coord[..., None]) / sigma) ** 2)
+    return g / g.amax(-1, keepdim=True).clamp(min=1e-12) * score[..., None]
+
+
+def hand_grid(centers: torch.Tensor, side: float, size: int, in_hw: tuple[int, int],
+              mirror: torch.Tensor) -> torch.Tensor:
+    """Sampling grid (N, size, size, 2) for grid_sample (align_corners=False).
+
+    centers: (N, 2) input pixels (pixel-centre convention); side: crop side in input pixels;
+    mirror: (N,) 1 to flip the crop left-right (right hands look like left hands), else 0.
+    Hand-crop pixel u maps to input x = cx + sgn * (u + 0.5 - size/2) * side/size.
+    """
+    h, w = in_hw
+    t = (torch.arange(size, dtype=centers.dtype) + 0.5 - size / 2) * (side / size)
+    sgn = (1 - 2 * mirror).to(centers.dtype)[:, None]
+    xs = centers[:, 0:1] + sgn * t[None]  # (N, size)
+    ys = centers[:, 1:2] + t[None]
+    gx = (xs + 0.5) / w * 2 - 1
+    gy = (ys + 0.5) / h * 2 - 1
+    n = centers.shape[0]
+    return torch.stack([gx[:, None, :].expand(n, size, size),
+                        gy[:, :, None].expand(n, size, size)], -1)
+
+
+class HandNet(nn.Module):
+    """21 hand keypoints as stride-4 heatmap logits from a (N, 3, S, S) hand crop."""
+
+    stride = 4
+
+    def __init__(self, num_keypoints: int = 21, widths=(16, 32, 48, 96, 128),
+                 head_width: int = 48):
+        super().__init__()
+        w = widths
+        self.encoder = Encoder(widths)
+        self.up16 = Up(w[4], w[3], 64)
+        self.up8 = Up(64, w[2], head_width)
+        self.up4 = Up(head_width, w[1], head_width)
+        self.head = nn.Conv2d(head_width, num_keypoints, 1)
+
+    def forward(self, x):
+        _, f4, f8, f16, f32 = self.encoder(x)
+        y = self.up16(f32, f16)
+        y = self.up8(y, f8)
+        y = self.up4(y, f4)
+        return self.head(y)
+
+
+class CascadeSimCC(nn.Module):
+    """Whole-body keypoints in the RTMPose SimCC contract, hands refined at full resolution.
+
+    Input (N, 3, H, W) normalised crop (default 256 x 192). Stage 1 (:class:`TinySimCC` body)
+    sees the crop average-pooled 2x and predicts 133 heatmaps at stride 8 of the input. Each
+    hand's centre is the score-weighted mean of its 21 coarse keypoints; a ``hand_side``-pixel
+    square around it is resampled from the full-resolution input (grid_sample, right hands
+    mirrored) to ``hand_size`` pixels and :class:`HandNet` predicts the hand's 21 keypoints,
+    which replace the coarse ones. Every keypoint's sub-cell peak and probability are emitted as
+    SimCC vectors (:func:`simcc_profile`), so arg-max/max decoding gives them back.
+    """
+
+    def __init__(self, in_hw: tuple[int, int] = (256, 192), split_ratio: int = 2,
+                 hand_size: int = 64, hand_side: float = 80.0, num_keypoints: int = 133):
+        super().__init__()
+        self.in_hw = tuple(in_hw)
+        self.split_ratio = split_ratio
+        self.hand_size = hand_size
+        self.hand_side = float(hand_side)
+        self.coarse = TinySimCC(num_keypoints, split_ratio)
+        self.hand = HandNet()
+        self.coarse_stride = 2 * self.coarse.stride  # input pixels per coarse cell
+
+    def coarse_logits(self, x):
+        return self.coarse.heatmap_logits(F.avg_pool2d(x, 2))
+
+    def hand_crops(self, x, centers: torch.Tensor) -> torch.Tensor:
+        """x (N, 3, H, W), centers (N, 2, 2) [left, right] -> crops (2N, 3, S, S), left first
+        then right per item (right mirrored)."""
+        n = x.shape[0]
+        c = centers.reshape(n * 2, 2)
+        mirror = torch.arange(2).repeat(n)
+        grid = hand_grid(c, self.hand_side, self.hand_size, self.in_hw, mirror)
+        xx = x[:, None].expand(n, 2, *x.shape[1:]).reshape(n * 2, *x.shape[1:])
+        return F.grid_sample(xx, grid, mode="bilinear", padding_mode="zeros",
+                             align_corners=False)
+
+    def hand_points(self, logits: torch.Tensor, centers: torch.Tensor):
+        """Hand heatmap logits (2N, 21, h, w) and crop centres (N, 2, 2) -> input-pixel
+        x, y (N, 42) and scores (N, 42), left hand then right (inverse of :func:`hand_grid`)."""
+        n = centers.shape[0]
+        hx, hy, hs = peak_subcell(logits)  # (2N, 21)
+        st = self.hand.stride
+        u = hx * st + (st - 1) / 2 + 0.5 - self.hand_size / 2
+        v = hy * st + (st - 1) / 2 + 0.5 - self.hand_size / 2
+        k = self.hand_side / self.hand_size
+        sgn = torch.tensor([1.0, -1.0]).repeat(n)[:, None]
+        c2 = centers.reshape(n * 2, 2)
+        return ((c2[:, 0:1] + sgn * u * k).reshape(n, 42), (c2[:, 1:2] + v * k).reshape(n, 42),
+                hs.reshape(n, 42))
+
+    @staticmethod
+    def _centers(px, py, score):
+        out = []
+        for a, b in HAND_SLICES:
+            wgt = score[:, a:b] + 1e-4
+            out.append(torch.stack([(wgt * px[:, a:b]).sum(1), (wgt * py[:, a:b]).sum(1)], -1)
+                       / wgt.sum(1, keepdim=True))
+        return torch.stack(out, 1)  # (N, 2, 2)
+
+    def hand_centers(self, coarse_logits: torch.Tensor) -> torch.Tensor:
+        """Coarse heatmap logits (N, 133, h, w) -> hand-crop centres (N, 2, 2) [left, right]
+        in input pixels: the score-weighted mean of each hand's 21 coarse keypoints."""
+        s = self.coarse_stride
+        cx, cy, score = peak_subcell(coarse_logits)
+        return self._centers(cx * s + (s - 1) / 2, cy * s + (s - 1) / 2, score)
+
+    def forward(self, x):
+        s = self.coarse_stride
+        cx, cy, score = peak_subcell(self.coarse_logits(x))
+        px, py = cx * s + (s - 1) / 2, cy * s + (s - 1) / 2
+        centers = self._centers(px, py, score)
+        hl = self.hand(self.hand_crops(x, centers))
+        hxp, hyp, hs = self.hand_points(hl, centers)
+        a0 = HAND_SLICES[0][0]
+        px = torch.cat([px[:, :a0], hxp], 1)
+        py = torch.cat([py[:, :a0], hyp], 1)
+        score = torch.cat([score[:, :a0], hs], 1)
+        h, w = self.in_hw
+        r = self.split_ratio
+        return simcc_profile(px, score, w * r, r), simcc_profile(py, score, h * r, r)

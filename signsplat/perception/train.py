@@ -26,7 +26,8 @@ import torch.nn.functional as F
 
 from signsplat.perception import data as D
 from signsplat.perception.contracts import RTM_MEAN, RTM_STD
-from signsplat.perception.nets import TinySegmenter, TinySimCC, count_parameters, export_onnx
+from signsplat.perception.nets import (HAND_SLICES, CascadeSimCC, TinySegmenter,
+                                      count_parameters, export_onnx)
 
 SEG_MEAN = (127.5, 127.5, 127.5)
 SEG_STD = (127.5, 127.5, 127.5)
@@ -44,16 +45,28 @@ class TrainConfig:
     seg_batch: int = 12
     seg_crop: int = 128              # square training crop (the net is fully convolutional)
     seg_size: tuple[int, int] = (256, 256)   # export/inference size (H, W)
+    seg_full_steps: int = 500        # phase 2: whole frames at lr / 3
+    seg_full_batch: int = 6
+    seg_background_rate: float = 0.5  # phase 2: share of frames on a replaced backdrop
     kp_steps: int = 800
     kp_batch: int = 24
-    kp_input: tuple[int, int] = (128, 96)    # crop (H, W)
-    kp_sigma: float = 1.25           # Gaussian sigma in heatmap cells (stride 4)
+    kp_input: tuple[int, int] = (256, 192)   # crop (H, W); the coarse stage sees it pooled 2x
+    kp_sigma: float = 1.25           # Gaussian sigma in coarse heatmap cells (stride 8)
+    hand_size: int = 64              # hand crop resampled to hand_size x hand_size pixels
+    hand_frac: float = 0.28          # hand crop side as a fraction of the crop height
+    hand_jitter: float = 5.0         # hand-centre jitter in training (pixels at 256 rows)
+    hand_sigma: float = 1.25         # Gaussian sigma in hand heatmap cells (stride 4)
+    kp_finetune_steps: int = 800     # phase 2 at lr / 3
+    kp_finetune_pred_centers: float = 0.5  # phase 2: share of hand crops at the coarse centres
+    checkpoint_every: int = 200      # save a PyTorch checkpoint (out_path + '.pt') this often
     lr: float = 3e-3
     weight_decay: float = 1e-4
     threads: int = 1                 # torch threads per model
     max_minutes: float | None = None  # wall-clock cap per model (None: run all steps; with a
     # cap, the learning-rate schedule follows max(step, time) progress and training stops at
     # the cap, so results then depend on the machine's speed; the card records the steps run)
+    seg_max_minutes: float | None = None  # per-model caps overriding max_minutes when set
+    kp_max_minutes: float | None = None
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "TrainConfig":
@@ -64,21 +77,36 @@ class TrainConfig:
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
-def training_scene_specs(count: int, seed: int, glosses: list[str]) -> list[dict]:
+def training_scene_specs(count: int, seed: int, glosses: list[str],
+                         letters: list[str] | tuple = ()) -> list[dict]:
     """``count`` scene specs (scene schema) drawn from a seeded generator.
 
-    Seeds, signer shapes and appearance seeds start at 1000 (the evaluation scenes use small
-    seeds), cameras vary in number, arc, distance, height and field of view; effects are drawn
-    from the simulator's registry.
+    Seeds, signer shapes and appearance seeds start at 1000 (the evaluation scenes in
+    config/scenes use small seeds and their own appearance seeds). The cameras vary around the
+    simulator's framing (upper body, 30 degree field of view at 2 m): count, arc, distance,
+    height, target and field of view; signs are mixed with fingerspelled letters (about half
+    the scenes spell 2-4 ``letters`` between signs, for the many hand shapes); lighting
+    (direction, ambient, intensity, colour), background, sensor noise, motion blur, occluders
+    and camera jitter are drawn from the simulator's effect registry.
     """
     rng = np.random.default_rng(10_000 + seed)
     specs = []
     for i in range(count):
-        n_gloss = int(rng.integers(3, 6))
+        n_gloss = int(rng.integers(2, 5))
         chosen = [str(g) for g in rng.choice(glosses, size=min(n_gloss, len(glosses)),
                                              replace=False)]
-        ring = rng.random() < 0.15
-        effects: list = ["lighting"]
+        if letters and rng.random() < 0.5:
+            spelled = [str(c) for c in rng.choice(list(letters), size=int(rng.integers(2, 5)))]
+            at = int(rng.integers(0, len(chosen) + 1))
+            chosen = chosen[:at] + spelled + chosen[at:]
+        ring = rng.random() < 0.1
+        light = {"direction": [round(float(v), 3) for v in
+                               (rng.uniform(-0.8, 0.8), rng.uniform(0.0, 1.0),
+                                rng.uniform(0.4, 1.0))],
+                 "ambient": round(float(rng.uniform(0.2, 0.5)), 3),
+                 "intensity": round(float(rng.uniform(0.5, 1.0)), 3),
+                 "color": [round(float(v), 3) for v in rng.uniform(0.85, 1.15, 3)]}
+        effects: list = [{"lighting": light}]
         if rng.random() < 0.5:
             effects.append({"background": {"kind": "solid",
                                            "color": [round(float(c), 3)
@@ -87,25 +115,25 @@ def training_scene_specs(count: int, seed: int, glosses: list[str]) -> list[dict
             effects.append({"background": {"kind": "textured", "seed": int(1000 + i)}})
         if rng.random() < 0.6:
             effects.append({"sensor_noise": {"sigma": round(float(rng.uniform(0.003, 0.03)), 4)}})
-        for name, p in (("motion_blur", 0.3), ("occluder", 0.3), ("camera_jitter", 0.3)):
+        for name, p in (("motion_blur", 0.3), ("occluder", 0.25), ("camera_jitter", 0.3)):
             if rng.random() < p:
                 effects.append(name)
         specs.append({
             "name": f"train{i:03d}",
             "seed": int(1000 + i),
             "fps": 25,
-            "max_frames": 40,
+            "max_frames": 50,
             "cameras": {
                 "count": int(rng.integers(2, 4)),
                 "layout": "ring" if ring else "arc",
-                "arc_degrees": round(float(rng.uniform(40, 180)), 1),
-                "distance": round(float(rng.uniform(1.7, 2.6)), 3),
-                "height": round(float(rng.uniform(1.2, 1.55)), 3),
-                "target": [round(float(rng.uniform(-0.08, 0.08)), 3),
-                           round(float(rng.uniform(1.12, 1.45)), 3), 0.0],
+                "arc_degrees": round(float(rng.uniform(30, 170)), 1),
+                "distance": round(float(rng.uniform(1.75, 2.3)), 3),
+                "height": round(float(rng.uniform(1.25, 1.45)), 3),
+                "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
+                           round(float(rng.uniform(1.25, 1.4)), 3), 0.0],
                 "width": 256,
                 "height_px": 256,
-                "fov_degrees": round(float(rng.uniform(24, 42)), 1),
+                "fov_degrees": round(float(rng.uniform(26, 36)), 1),
             },
             "signer": {
                 "betas": [round(float(b), 3) for b in rng.normal(0, 0.8, 10)],
@@ -142,35 +170,31 @@ def _log(msg: str, log) -> None:
     print(msg, file=log or sys.stderr, flush=True)
 
 
-def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
-                    log=None) -> dict:
-    """Train :class:`TinySegmenter` (BCE + soft Dice on random crops), export ONNX.
-
-    Returns a summary dict (parameters, steps, seconds, final loss).
-    """
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(cfg.threads)
-    rng = np.random.default_rng(cfg.seed + 1)
-    net = TinySegmenter()
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+def _segmenter_phase(net, opt, train: D.FrameSet, cfg: TrainConfig, crop: int, batch: int,
+                     steps: int, lr: float, rng: np.random.Generator, cap: float | None,
+                     tag: str, log=None, background_rate: float = 0.0
+                     ) -> tuple[int, list[float]]:
+    """One phase of segmenter training (warm-up + cosine to 0 over ``steps``); BCE + soft Dice
+    on ``batch`` random ``crop`` x ``crop`` windows of augmented frames (``background_rate``:
+    share of frames whose background is replaced, see :func:`data.segmentation_sample`)."""
     t0, losses = time.perf_counter(), []
-    c = cfg.seg_crop
     step = 0
-    while step < cfg.seg_steps:
-        progress = _progress(step, cfg.seg_steps, t0, cfg.max_minutes)
+    while step < steps:
+        progress = _progress(step, steps, t0, cap)
         if progress >= 1.0:
             break
         imgs, masks = [], []
-        for i in rng.integers(0, len(train), cfg.seg_batch):
-            im, mk = D.segmentation_sample(train, int(i), cfg.seg_size, rng)
-            y = int(rng.integers(0, cfg.seg_size[0] - c + 1))
-            x = int(rng.integers(0, cfg.seg_size[1] - c + 1))
-            imgs.append(im[y:y + c, x:x + c])
-            masks.append(mk[y:y + c, x:x + c])
+        for i in rng.integers(0, len(train), batch):
+            im, mk = D.segmentation_sample(train, int(i), cfg.seg_size, rng,
+                                           background_rate=background_rate)
+            y = int(rng.integers(0, cfg.seg_size[0] - crop + 1))
+            x = int(rng.integers(0, cfg.seg_size[1] - crop + 1))
+            imgs.append(im[y:y + crop, x:x + crop])
+            masks.append(mk[y:y + crop, x:x + crop])
         x = _to_tensor(np.stack(imgs), SEG_MEAN, SEG_STD)
         target = torch.from_numpy(np.stack(masks))[:, None]
         for g in opt.param_groups:
-            g["lr"] = _lr(progress, cfg.lr)
+            g["lr"] = _lr(progress, lr)
         logits = net.forward_logits(x)
         prob = torch.sigmoid(logits)
         inter = (prob * target).sum((1, 2, 3))
@@ -180,61 +204,211 @@ def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
         loss.backward()
         opt.step()
         losses.append(loss.item())
-        if step % 50 == 0 or step == cfg.seg_steps - 1:
-            _log(f"segmenter step {step}/{cfg.seg_steps} loss {np.mean(losses[-50:]):.4f} "
+        if step % 50 == 0 or step == steps - 1:
+            _log(f"segmenter {tag} step {step}/{steps} loss {np.mean(losses[-50:]):.4f} "
                  f"{time.perf_counter() - t0:.0f}s", log)
         step += 1
+    return step, losses
+
+
+def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
+                    log=None, resume: str | os.PathLike | None = None) -> dict:
+    """Train :class:`TinySegmenter` and export it to ONNX.
+
+    Phase 1: ``seg_steps`` steps on ``seg_crop`` windows (many samples per second). Phase 2:
+    ``seg_full_steps`` steps on whole frames (``seg_size``, batch ``seg_full_batch``) at a
+    third of the learning rate, with a fresh optimizer and its own random stream, so that the
+    model sees the whole figure against its background, and with a share
+    ``seg_background_rate`` of the frames on replaced backdrops (flat greys and colours,
+    gradients, blotches: phase 1 alone over-extends masks into plain light-grey backgrounds
+    next to the body). ``resume``: a phase-1 state dict (``out_path + '.1.pt'``
+    of an earlier run) to start phase 2 from; the result equals an uninterrupted run's.
+    Returns a summary dict (parameters, steps, seconds, losses).
+    """
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    net = TinySegmenter()
+    t0 = time.perf_counter()
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    cap = cfg.seg_max_minutes or cfg.max_minutes
+    if resume is None:
+        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        steps1, losses1 = _segmenter_phase(
+            net, opt, train, cfg, cfg.seg_crop, cfg.seg_batch, cfg.seg_steps, cfg.lr,
+            np.random.default_rng(cfg.seed + 1), cap, "crops", log)
+        torch.save(net.state_dict(), str(out_path) + ".1.pt")
+    else:
+        net.load_state_dict(torch.load(str(resume)))
+        steps1, losses1 = cfg.seg_steps, [float("nan")] * 10
+    t1 = time.perf_counter()
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr / 3, weight_decay=cfg.weight_decay)
+    steps2, losses2 = _segmenter_phase(
+        net, opt, train, cfg, min(cfg.seg_size), cfg.seg_full_batch, cfg.seg_full_steps,
+        cfg.lr / 3, np.random.default_rng(cfg.seed + 11), cap, "frames", log,
+        cfg.seg_background_rate)
     seconds = time.perf_counter() - t0
+    torch.save(net.state_dict(), str(out_path) + ".pt")
     export_onnx(net, out_path, cfg.seg_size, ["alpha"])
+    losses = losses1 + losses2
+    step = steps1 + steps2
     return {"model": "segmenter", "parameters": count_parameters(net), "steps": step,
             "batch": cfg.seg_batch, "train_seconds": round(seconds, 1),
+            "phase_steps": [steps1, steps2], "phase2_seconds": round(time.perf_counter() - t1, 1),
             "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
             "input_size": list(cfg.seg_size),
             "mean": list(SEG_MEAN), "std": list(SEG_STD), "frames": len(train)}
 
 
-def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
-                    log=None) -> dict:
-    """Train :class:`TinySimCC` (weighted BCE on stride-4 heatmaps), export ONNX."""
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(cfg.threads)
-    rng = np.random.default_rng(cfg.seed + 2)
-    net = TinySimCC()
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    t0, losses = time.perf_counter(), []
+def hand_training_centers(pts: np.ndarray, vis: np.ndarray, hw: tuple[int, int],
+                          rng: np.random.Generator, jitter: float, negative_rate: float = 0.08
+                          ) -> np.ndarray:
+    """Hand-crop centres (2, 2) [left, right] in crop pixels for one training crop.
+
+    The centre is the mean of the hand's 21 ground-truth points (visible or not) moved by a
+    Gaussian jitter of ``jitter`` pixels (the coarse stage's error at inference), now and then
+    five times larger; a few centres are random points of the crop (no hand to be seen).
+    """
+    h, w = hw
+    out = np.zeros((2, 2), np.float32)
+    for j, (a, b) in enumerate(HAND_SLICES):
+        p = pts[a:b]
+        ok = np.all(np.abs(p) < 1e3, axis=1)
+        if rng.random() < negative_rate or not ok.any():
+            out[j] = rng.uniform((0, 0), (w, h))
+            continue
+        scale = jitter * (5.0 if rng.random() < 0.1 else 1.0)
+        out[j] = p[ok].mean(0) + rng.normal(0, scale, 2)
+    return out
+
+
+def hand_targets(pts: np.ndarray, vis: np.ndarray, centers: np.ndarray, side: float,
+                 size: int, stride: int, sigma: float) -> np.ndarray:
+    """Heatmap targets (2, 21, size/stride, size/stride) of both hands in their crops.
+
+    Inverse of :func:`~signsplat.perception.nets.hand_grid`: crop pixel
+    ``u = sgn * (x - cx) * size / side + size/2 - 0.5`` (sgn = -1 for the mirrored right hand).
+    Points outside the hand crop or invisible get no peak.
+    """
+    k = size / side
+    out = []
+    for j, (a, b) in enumerate(HAND_SLICES):
+        sgn = -1.0 if j == 1 else 1.0
+        u = sgn * (pts[a:b, 0] - centers[j, 0]) * k + size / 2 - 0.5
+        v = (pts[a:b, 1] - centers[j, 1]) * k + size / 2 - 0.5
+        uv = np.stack([u, v], 1)
+        inside = vis[a:b] & (u >= 0) & (u <= size - 1) & (v >= 0) & (v <= size - 1)
+        out.append(D.heatmap_targets(uv, inside, (size, size), stride, sigma))
+    return np.stack(out)
+
+
+def _heatmap_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Peak-weighted BCE on heatmap logits (the background dominates the cells)."""
+    weight = 1.0 + 20.0 * target
+    return (F.binary_cross_entropy_with_logits(logits, target, reduction="none")
+            * weight).mean() * 10
+
+
+def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig, steps: int,
+                    lr: float, rng: np.random.Generator, cap: float | None, pred_rate: float,
+                    tag: str, out_path, log=None) -> tuple[int, list[float]]:
+    """One phase of keypoint training (warm-up + cosine to 0 over ``steps``).
+
+    ``pred_rate``: fraction of the hand crops centred where the coarse stage (as it is at that
+    step) puts the hand, as at inference, instead of at the jittered ground truth.
+    """
     hw = cfg.kp_input
+    cs, hs, side = net.coarse_stride, net.hand.stride, net.hand_side
+    t0, losses, parts = time.perf_counter(), [], []
     step = 0
-    while step < cfg.kp_steps:
-        progress = _progress(step, cfg.kp_steps, t0, cfg.max_minutes)
+    while step < steps:
+        progress = _progress(step, steps, t0, cap)
         if progress >= 1.0:
             break
-        crops, targets = [], []
+        crops, samples, targets, centers = [], [], [], []
         for i in rng.integers(0, len(train), cfg.kp_batch):
             crop, pts, vis = D.keypoint_sample(train, int(i), hw, rng)
             crops.append(crop)
-            targets.append(D.heatmap_targets(pts, vis, hw, net.stride, cfg.kp_sigma))
+            samples.append((pts, vis))
+            targets.append(D.heatmap_targets(pts, vis, hw, cs, cfg.kp_sigma))
+            centers.append(hand_training_centers(pts, vis, hw, rng, cfg.hand_jitter * hw[0] / 256))
         x = _to_tensor(np.stack(crops), RTM_MEAN, RTM_STD)
         target = torch.from_numpy(np.stack(targets))
         for g in opt.param_groups:
-            g["lr"] = _lr(progress, cfg.lr)
-        logits = net.heatmap_logits(x)
-        weight = 1.0 + 20.0 * target
-        loss = (F.binary_cross_entropy_with_logits(logits, target, reduction="none")
-                * weight).mean() * 10
+            g["lr"] = _lr(progress, lr)
+        logits = net.coarse_logits(x)
+        lc = _heatmap_loss(logits, target)
+        centers = np.stack(centers)
+        if pred_rate > 0:
+            use = rng.random(centers.shape[:2]) < pred_rate
+            pred = net.hand_centers(logits.detach()).numpy()
+            centers = np.where(use[..., None], pred, centers).astype(np.float32)
+        htarget = torch.from_numpy(np.concatenate([
+            hand_targets(p, v, c, side, cfg.hand_size, hs, cfg.hand_sigma)
+            for (p, v), c in zip(samples, centers)]))  # (2B, 21, h, w), left then right
+        with torch.no_grad():
+            hx = net.hand_crops(x, torch.from_numpy(centers))
+        lh = _heatmap_loss(net.hand(hx), htarget)
+        loss = lc + lh
         opt.zero_grad()
         loss.backward()
         opt.step()
         losses.append(loss.item())
-        if step % 50 == 0 or step == cfg.kp_steps - 1:
-            _log(f"keypoints step {step}/{cfg.kp_steps} loss {np.mean(losses[-50:]):.4f} "
-                 f"{time.perf_counter() - t0:.0f}s", log)
+        parts.append((lc.item(), lh.item()))
+        if step % 50 == 0 or step == steps - 1:
+            pc, ph = np.mean(parts[-50:], 0)
+            _log(f"keypoints {tag} step {step}/{steps} loss {np.mean(losses[-50:]):.4f} "
+                 f"(coarse {pc:.4f}, hands {ph:.4f}) {time.perf_counter() - t0:.0f}s", log)
+        if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step:
+            torch.save(net.state_dict(), str(out_path) + ".pt")
         step += 1
+    return step, losses
+
+
+def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
+                    log=None, resume: str | os.PathLike | None = None) -> dict:
+    """Train :class:`CascadeSimCC` and export it to ONNX.
+
+    Each step draws ``kp_batch`` augmented person crops at ``kp_input``; the coarse stage
+    learns all 133 heatmaps (stride 8 of the crop) and the hand stage learns its 21 heatmaps
+    on both hands' crops, taken with the graph's own grid_sample (weighted BCE for both; the
+    sum is minimised). Phase 1 (``kp_steps``, lr): hand crops around jittered ground-truth
+    hand centres. Phase 2 (``kp_finetune_steps``, lr / 3, fresh optimizer, own random stream):
+    a fraction ``kp_finetune_pred_centers`` of the hand crops is centred where the coarse stage
+    puts the hand, as at inference. ``resume``: a phase-1 state dict (``out_path + '.1.pt'``)
+    to start phase 2 from; the result equals an uninterrupted run's.
+    """
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    hw = cfg.kp_input
+    side = cfg.hand_frac * hw[0]
+    net = CascadeSimCC(hw, hand_size=cfg.hand_size, hand_side=side)
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    cap = cfg.kp_max_minutes or cfg.max_minutes
+    t0 = time.perf_counter()
+    if resume is None:
+        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        steps1, losses1 = _keypoint_phase(net, opt, train, cfg, cfg.kp_steps, cfg.lr,
+                                          np.random.default_rng(cfg.seed + 2), cap, 0.0,
+                                          "crops", out_path, log)
+        torch.save(net.state_dict(), str(out_path) + ".1.pt")
+    else:
+        net.load_state_dict(torch.load(str(resume)))
+        steps1, losses1 = cfg.kp_steps, [float("nan")] * 10
+    t1 = time.perf_counter()
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr / 3, weight_decay=cfg.weight_decay)
+    steps2, losses2 = _keypoint_phase(net, opt, train, cfg, cfg.kp_finetune_steps, cfg.lr / 3,
+                                      np.random.default_rng(cfg.seed + 12), cap,
+                                      cfg.kp_finetune_pred_centers, "cascade", out_path, log)
     seconds = time.perf_counter() - t0
-    export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"])
+    torch.save(net.state_dict(), str(out_path) + ".pt")
+    export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"], atol=2e-3)
+    losses = losses1 + losses2
+    step = steps1 + steps2
     return {"model": "keypoints", "parameters": count_parameters(net), "steps": step,
             "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),
+            "phase_steps": [steps1, steps2], "phase2_seconds": round(time.perf_counter() - t1, 1),
             "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
-            "input_size": list(hw),
+            "input_size": list(hw), "hand_size": cfg.hand_size, "hand_side": side,
             "split_ratio": net.split_ratio, "mean": list(RTM_MEAN), "std": list(RTM_STD),
             "frames": len(train)}
 

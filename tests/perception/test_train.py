@@ -43,7 +43,10 @@ def test_keypoint_samples_and_targets(tmp_path, scene_factory):
 def test_tiny_training_runs_and_exports(tmp_path, scene_factory):
     fs = D.load_scene(scene_factory(tmp_path, views=2, frames=4, size=64))
     cfg = TrainConfig(seg_steps=30, seg_batch=4, seg_crop=48, seg_size=(64, 64),
-                      kp_steps=30, kp_batch=4, kp_input=(64, 48), lr=3e-3)
+                      seg_full_steps=10, seg_full_batch=2,
+                      kp_steps=30, kp_batch=4, kp_input=(64, 48), hand_size=32, lr=3e-3,
+                      kp_finetune_steps=6,
+                      checkpoint_every=0)
     s = train_segmenter(fs, cfg, tmp_path / "seg.onnx")
     assert s["final_loss"] < s["first_loss"]
     seg = load_segmenter(SegmenterSpec(str(tmp_path / "seg.onnx"), input_size=(64, 64)))
@@ -64,8 +67,10 @@ def test_train_detectors_command_on_given_scenes(tmp_path, scene_factory):
     dirs = [scene_factory(tmp_path, name=f"s{i}", views=1, frames=3, size=64, seed=i)
             for i in range(3)]
     cfg = {"threads": 1, "train": {"seg_steps": 3, "seg_batch": 2, "seg_crop": 32,
+                                   "seg_full_steps": 2, "seg_full_batch": 2,
                                    "seg_size": [64, 64], "kp_steps": 3, "kp_batch": 2,
-                                   "kp_input": [64, 48], "val_scenes": 1},
+                                   "kp_input": [64, 48], "hand_size": 32, "val_scenes": 1,
+                                   "kp_finetune_steps": 2},
            "segmenter": {"input_size": [64, 64]}}
     out = tmp_path / "models"
     assert train_detectors(["--work", str(tmp_path / "work"), "--out-dir", str(out),
@@ -77,3 +82,18 @@ def test_train_detectors_command_on_given_scenes(tmp_path, scene_factory):
     metrics = {(r["metric"], r["part"]) for r in card["validation"]}
     assert ("mask_iou", "all") in metrics and ("pck@0.05", "right_hand") in metrics
     assert (tmp_path / "work" / "logs" / "keypoints.log").read_text().count("step") >= 1
+
+
+def test_segmenter_phase_two_resumes_exactly(tmp_path, scene_factory):
+    import torch
+
+    fs = D.load_scene(scene_factory(tmp_path, views=1, frames=3, size=64))
+    cfg = TrainConfig(seg_steps=4, seg_batch=2, seg_crop=32, seg_size=(64, 64),
+                      seg_full_steps=3, seg_full_batch=2)
+    full = train_segmenter(fs, cfg, tmp_path / "a.onnx")
+    resumed = train_segmenter(fs, cfg, tmp_path / "b.onnx", resume=tmp_path / "a.onnx.1.pt")
+    assert full["phase_steps"] == resumed["phase_steps"] == [4, 3]
+    a, b = torch.load(tmp_path / "a.onnx.pt"), torch.load(tmp_path / "b.onnx.pt")
+    phase1 = torch.load(tmp_path / "a.onnx.1.pt")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert any(not torch.equal(a[k], phase1[k]) for k in a if a[k].is_floating_point())

@@ -1,7 +1,8 @@
 # Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints from ONNX models named in
 # config `perception` (defaults: the shipped models/segmenter.onnx, models/keypoints.onnx),
 # and their accuracy beside time on synthetic scenes. `snakemake train_detectors` retrains the
-# shipped models from simulated scenes (not part of `all`; copy its outputs to models/).
+# shipped models from simulated scenes (not part of `all`; copy its ONNX outputs to models/;
+# models/README.md is their model card).
 from signsplat.config import validate as _validate
 
 PERCEPTION = _validate(

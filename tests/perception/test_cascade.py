@@ -1,0 +1,74 @@
+"""The cascade keypoint graph: sub-cell peaks, SimCC emission, hand crops and their inverse."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from signsplat.perception.keypoints import decode_simcc
+from signsplat.perception.nets import CascadeSimCC, peak_subcell, simcc_profile
+from signsplat.perception.train import hand_targets
+
+
+def _logit(p):
+    p = np.clip(p, 1e-6, 1 - 1e-6)
+    return np.log(p / (1 - p))
+
+
+def test_peak_subcell_recovers_a_gaussian_peak_between_cells():
+    h, w = 12, 10
+    peaks = [(3.3, 7.8), (6.6, 2.05), (0.2, 0.4)]  # the last one at the border
+    yy, xx = np.mgrid[0:h, 0:w]
+    maps = [0.9 * np.exp(-0.5 * ((xx - x0) ** 2 + (yy - y0) ** 2) / 1.25 ** 2)
+            for x0, y0 in peaks]
+    logits = torch.tensor(_logit(np.stack(maps)))[None].float()
+    x, y, p = peak_subcell(logits)
+    for k, (x0, y0) in enumerate(peaks[:2]):
+        assert abs(float(x[0, k]) - x0) < 0.05 and abs(float(y[0, k]) - y0) < 0.05
+    assert abs(float(x[0, 2]) - 0.2) <= 0.5 and abs(float(y[0, 2]) - 0.4) <= 0.5
+    assert float(p.max()) <= 0.9 + 1e-4 and float(p.min()) > 0.5
+
+
+def test_simcc_profile_decodes_to_the_coordinate_and_score():
+    coords = torch.tensor([[10.3, 0.0, 95.7, 47.25]])
+    scores = torch.tensor([[0.8, 0.1, 1.0, 0.0]])
+    sx = simcc_profile(coords, scores, 96 * 2, 2).numpy()
+    locs, raw = decode_simcc(sx, sx, 2)
+    ok = scores.numpy() > 0
+    assert np.all(np.abs(locs[..., 0][ok] - coords.numpy()[ok]) <= 0.25 + 1e-6)
+    assert np.allclose(raw, scores.numpy(), atol=1e-6)
+    assert np.isnan(locs[0, 3]).all()  # score 0: no location
+
+
+def test_hand_targets_and_hand_points_are_inverse_for_both_hands():
+    net = CascadeSimCC((256, 192), hand_size=64, hand_side=72.0)
+    rng = np.random.default_rng(3)
+    pts = np.zeros((133, 2), np.float32)
+    centers = np.array([[60.0, 120.0], [140.0, 110.0]], np.float32)
+    pts[91:112] = centers[0] + rng.uniform(-25, 25, (21, 2))
+    pts[112:133] = centers[1] + rng.uniform(-25, 25, (21, 2))
+    vis = np.ones(133, bool)
+    t = hand_targets(pts, vis, centers, 72.0, 64, net.hand.stride, 1.25)  # (2, 21, 16, 16)
+    assert t.shape == (2, 21, 16, 16)
+    logits = torch.tensor(_logit(t.reshape(42, 16, 16) * 0.95)).float().reshape(2, 21, 16, 16)
+    hx, hy, hs = net.hand_points(logits, torch.tensor(centers)[None])
+    got = np.stack([hx[0].numpy(), hy[0].numpy()], -1)
+    assert np.abs(got - pts[91:133]).max() < 0.5
+    assert np.all((hs.numpy() > 0.8) & (hs.numpy() <= 0.95 + 1e-5))  # the peak cell
+
+
+def test_hand_crop_sampling_matches_the_target_mapping():
+    net = CascadeSimCC((256, 192), hand_size=64, hand_side=72.0)
+    img = torch.zeros(1, 3, 256, 192)
+    dots = [(70, 100), (150, 90)]  # (x, y) near the left / right hand centres
+    for x, y in dots:
+        img[0, :, y, x] = 1.0
+    centers = torch.tensor([[[60.0, 110.0], [140.0, 100.0]]])
+    crops = net.hand_crops(img, centers)[:, 0]  # (2, 64, 64)
+    for j, (x, y) in enumerate(dots):
+        sgn = -1 if j else 1
+        c = centers[0, j].numpy()
+        u = sgn * (x - c[0]) * 64 / 72 + 31.5
+        v = (y - c[1]) * 64 / 72 + 31.5
+        vv, uu = np.unravel_index(int(crops[j].argmax()), (64, 64))
+        assert abs(uu - u) <= 1.0 and abs(vv - v) <= 1.0
