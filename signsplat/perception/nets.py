@@ -359,7 +359,11 @@ class CascadeSimCC(nn.Module):
         a0 = HAND_SLICES[0][0]
         px = torch.cat([px[:, :a0], hxp], 1)
         py = torch.cat([py[:, :a0], hyp], 1)
-        score = torch.cat([score[:, :a0], hs], 1)
+        # a hand point's score: the hand network's peak probability times the
+        # coarse stage's mean probability for that hand (is there a hand near here at all?)
+        presence = torch.cat([score[:, a:b].mean(1, keepdim=True).expand(-1, b - a)
+                              for a, b in HAND_SLICES], 1)
+        score = torch.cat([score[:, :a0], hs * presence], 1)
         h, w = self.in_hw
         r = self.split_ratio
         return simcc_profile(px, score, w * r, r), simcc_profile(py, score, h * r, r)

@@ -1,4 +1,5 @@
-"""The shipped default models (models/*.onnx) on held-out synthetic frames, and hard cases:
+"""The shipped default models (models/*.onnx) on held-out synthetic scenes against the issue-4
+targets (mask IoU >= 0.97, body PCK@0.05 >= 0.95, hands PCK@0.05 >= 0.85), and hard cases:
 no person, an occluded hand, a hand outside the image."""
 
 from __future__ import annotations
@@ -24,6 +25,39 @@ BODY, LEFT_HAND = list(KP_BODY), list(KP_LEFT_HAND)
 
 
 @pytest.fixture(scope="module")
+def held_out(tmp_path_factory, shipped):
+    """Accuracy rows of both stages on freshly simulated evaluation scenes (config/scenes:
+    'single' 40 frames, 'studio6' 6 views x 8 frames), which training never sees."""
+    import pandas as pd
+
+    from signsplat.body.proxy import write_proxy_model
+    from signsplat.config import load_scene, validate
+    from signsplat.perception.evaluate import accuracy
+    from signsplat.perception.stages import detect_sequence, segment_sequence
+    from signsplat.synth.glosses import write_gloss_library
+    from signsplat.synth.simulate import simulate_scene
+
+    seg, _, kp, _ = shipped
+    root = tmp_path_factory.mktemp("held_out")
+    body, glosses = root / "body.npz", root / "glosses.parquet"
+    write_proxy_model(body, seed=0)
+    write_gloss_library(glosses, seed=0, fps=25.0)
+    rows = []
+    for name, frames in (("single", 40), ("studio6", 8)):
+        spec = load_scene(ROOT / "config" / "scenes" / f"{name}.yaml")
+        spec.update(name=name, max_frames=frames)
+        spec = validate(spec, "scene.schema.yaml", name)
+        sim, out = root / name / "sim", root / name / "perception"
+        simulate_scene(spec, body, glosses, sim, threads=2, progress=False)
+        segment_sequence(sim / "frames.parquet", out, seg, 2, progress=False)
+        detect_sequence(sim / "frames.parquet", out / "masks.parquet", out / "keypoints.parquet",
+                        kp, 2, progress=False)
+        rows.append(accuracy(sim, out))
+    df = pd.concat(rows, ignore_index=True)
+    return {(r["scene"], r["metric"], r["part"]): r["value"] for _, r in df.iterrows()}
+
+
+@pytest.fixture(scope="module")
 def shipped():
     seg, kp = specs(perception_config(None))
     seg = type(seg)(**{**seg.__dict__, "path": str(ROOT / seg.path)})
@@ -46,8 +80,11 @@ def test_shipped_files_size_opset_dynamic_batch(name):
     assert batch.dim_param and not batch.dim_value  # symbolic batch axis
 
 
-@pytest.mark.xfail(reason="the shipped default detectors (trained 03:25 on the first simulator version, before the final framing) do not reach this bar yet; issue 4 stays open", strict=False)
-@pytest.mark.parametrize("name", FRAMES)
+@pytest.mark.parametrize("name", [
+    pytest.param(FRAMES[0], marks=pytest.mark.xfail(
+        reason="shipped models of 08:57: body PCK 0.75 on this frame (shoulders and the right "
+               "wrist of this signer are off by 12-30 px); issue 4 stays open", strict=False)),
+    FRAMES[1]])
 def test_accuracy_on_held_out_frames(shipped, name):
     seg, smodel, kp, kmodel = shipped
     img, gt_mask, gt_xy, vis = _frame(name)
@@ -61,6 +98,47 @@ def test_accuracy_on_held_out_frames(shipped, name):
     body = [k for k in BODY if vis[k]]
     assert np.mean(np.nan_to_num(err[body], nan=np.inf) <= thr) >= 0.8
     assert np.all((score >= 0) & (score <= 1))
+
+
+MISSED = ("shipped models of 08:57 (models/README.md): on the evaluation scenes mask IoU "
+          "0.970/0.965, body PCK 0.83, right hand 0.24/0.49, left hand 0.99/0.83 (single/studio6)"
+          " - below the issue-4 target; issue 4 stays open for it")
+
+
+def _case(scene, metric, part, target, missed=False):
+    marks = [pytest.mark.xfail(reason=MISSED, strict=False)] if missed else []
+    return pytest.param(scene, metric, part, target, marks=marks,
+                        id=f"{scene}-{metric}-{part}")
+
+
+TARGETS = [
+    _case("single", "pck@0.05", "left_hand", 0.85),
+    _case("single", "mask_iou", "all", 0.97, missed=True),
+    _case("studio6", "mask_iou", "all", 0.97, missed=True),
+    _case("single", "pck@0.05", "body", 0.95, missed=True),
+    _case("studio6", "pck@0.05", "body", 0.95, missed=True),
+    _case("studio6", "pck@0.05", "left_hand", 0.85, missed=True),
+    _case("single", "pck@0.05", "right_hand", 0.85, missed=True),
+    _case("studio6", "pck@0.05", "right_hand", 0.85, missed=True),
+]
+
+
+@pytest.mark.parametrize("scene,metric,part,target", TARGETS)
+def test_held_out_scenes_against_the_issue_targets(held_out, scene, metric, part, target):
+    assert held_out[(scene, metric, part)] >= target
+
+
+def test_held_out_levels_the_shipped_models_reach(held_out):
+    """What the shipped models do reach on both evaluation scenes (the old 03:25 models had
+    IoU 0.93, body PCK 0.40 and hands near 0 on 'single')."""
+    for scene in ("single", "studio6"):
+        assert held_out[(scene, "mask_iou", "all")] >= 0.955
+        assert held_out[(scene, "pck@0.05", "face")] >= 0.9
+        assert held_out[(scene, "pck@0.05", "body")] >= 0.75
+        assert held_out[(scene, "pck@0.05", "left_hand")] >= 0.75
+        assert held_out[(scene, "mean_px_error", "face")] < 8.0
+        assert held_out[(scene, "mean_px_error", "body")] < 10.0
+        assert held_out[(scene, "mean_px_error", "left_hand")] < 10.0
 
 
 def test_no_person_gives_empty_mask_and_zero_scores(shipped):
@@ -77,7 +155,9 @@ def test_no_person_gives_empty_mask_and_zero_scores(shipped):
     assert np.all(score == 0) and np.all(np.isnan(xy))
 
 
-@pytest.mark.xfail(reason="the shipped default detectors (trained 03:25 on the first simulator version, before the final framing) do not reach this bar yet; issue 4 stays open", strict=False)
+@pytest.mark.xfail(reason="shipped models of 08:57: clean left-hand score 0.29 (the hand "
+                   "network's probability times the coarse hand presence), occluded 0.16: low, but "
+                   "not below half the clean score; issue 4 stays open", strict=False)
 def test_occluded_hand_gets_low_scores_not_confident_garbage(shipped):
     seg, smodel, kp, kmodel = shipped
     img, gt_mask, gt_xy, vis = _frame("single_v00_f0040")
