@@ -20,11 +20,11 @@ SCHEMA = "stages/avatar.schema.yaml"
 PROFILES: dict[str, dict[str, Any]] = {
     "demo": {},
     "quality": {
-        "upsample": {"edge_length": 0.012, "face_area": 6.0e-5},
+        "upsample": {"edge_length": 0.008, "face_area": 3.0e-5},
         "train": {"iterations": 6000, "accumulate_poses": 4},
         "model": {"sh_degree": 1, "hidden": 48},
         "strategy": {"refine_start": 300, "refine_every": 100, "refine_stop": 4500,
-                     "max_points": 90000},
+                     "max_points": 200000},
         "sh_schedule": {"rise_at": 0.8},
     },
 }
@@ -32,8 +32,8 @@ PROFILES: dict[str, dict[str, Any]] = {
 
 @dataclass
 class UpsampleConfig:
-    edge_length: float = 0.02  # m; edges longer than this get points along them
-    face_area: float = 1.5e-4  # m^2; faces larger than this get a point at their centre
+    edge_length: float = 0.012  # m; edges longer than this get points along them
+    face_area: float = 6.0e-5  # m^2; faces larger than this get a point at their centre
     max_rounds: int = 1
     interior: str = "grid"  # large faces: "centre" (the paper's centroid) or a barycentric grid
 
@@ -72,10 +72,10 @@ class StrategyConfig:
     enabled: bool = True  # densification + pruning (paper Table 5 "Dens.")
     grad_threshold: float = 0.0002
     refine_start: int = 100
-    refine_stop: int = 550
+    refine_stop: int = 900
     refine_every: int = 50
     reset_every: int = 0  # 0 = never reset the gradient statistics except after refining
-    max_points: int = 40000
+    max_points: int = 90000
     max_new_per_refine: int = 3000
     prune_opacity: float = 0.02
     prune_scale_fraction: float = 0.98  # of the per-part scale bound
@@ -109,7 +109,7 @@ class LossConfig:
 
 @dataclass
 class TrainConfig:
-    iterations: int = 700
+    iterations: int = 1200
     accumulate_poses: int = 3  # poses whose losses are summed before a step (Table 5 "Acc.")
     accumulate: bool = True  # off = one pose per optimiser step
     lr_means: float = 1.0e-3  # learnable barycentric logits / normal offsets
