@@ -105,7 +105,9 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
       from the other views must reproject onto each view's detections): first the best of
       the three uniform rigs, then per view the candidate that lowers its leave-one-out error
       (two rounds). Noisy detections (a few-pixel face, swapped sides) make single-view PnP
-      tens of degrees wrong; the consistency test catches it.
+      tens of degrees wrong; the consistency test catches it. PnP candidates whose distance
+      to the body is off the prior's by more than ``pnp_distance_tolerance`` are dropped, and
+      a PnP rig must beat the prior rig by the factor ``prior_margin``.
 
     Status per view: 'pnp', 'pnp_ransac', 'prior' or 'no_detections'.
     """
@@ -133,7 +135,8 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
         if m.sum() >= cfg["pnp_min_points"]:
             sol = pnp(kp_neutral[idx][m], med[idx][m][:, :2], K[v])
         if sol is not None and sol[2] <= cfg["pnp_max_rms_px"] and \
-                np.linalg.norm(sol[1]) <= cfg["pnp_max_distance_m"]:
+                np.linalg.norm(sol[1]) <= cfg["pnp_max_distance_m"] and \
+                (mode != "auto" or _plausible_distance(sol[0], sol[1], chest, cfg)):
             cands[v]["pnp"] = (sol[0], sol[1])
             rms[v] = sol[2]
         elif sol is not None:
@@ -144,20 +147,36 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
             thr = cfg["ransac_threshold"] * float(np.asarray(height)[v])
             rs = pnp_ransac(X, x, K[v], thr)
             if rs is not None and rs[3] >= cfg["ransac_min_inliers"] and \
-                    np.linalg.norm(rs[1]) <= cfg["pnp_max_distance_m"]:
+                    np.linalg.norm(rs[1]) <= cfg["pnp_max_distance_m"] and \
+                    _plausible_distance(rs[0], rs[1], chest, cfg):
                 cands[v]["pnp_ransac"] = (rs[0], rs[1])
         best = "pnp" if "pnp" in cands[v] else "prior"
         R[v], t[v] = cands[v][best]
         status.append(best)
     if mode == "auto":
         R, t, status = _choose_by_consistency(cands, obs, np.asarray(K, float), R, t, status,
-                                              cfg["init_frames"])
+                                              cfg["init_frames"], cfg["prior_margin"])
     return Rig(K=np.asarray(K, float), R=R, t=t, width=np.asarray(width),
                height=np.asarray(height)), status, rms
 
 
-def _choose_by_consistency(cands, obs, K, R, t, status, frames):
-    """Candidate cameras per view chosen by leave-one-out multi-view consistency."""
+def _plausible_distance(R: np.ndarray, t: np.ndarray, chest: np.ndarray, cfg: dict) -> bool:
+    """A PnP camera's distance to the chest is within ``pnp_distance_tolerance`` (a ratio) of
+    the rig prior's distance. Multi-view consistency cannot catch a rig that is consistently
+    too close: with biased detections PnP of the neutral body can put every camera at half the
+    distance, and such a rig still triangulates the few body points consistently."""
+    d = float(np.linalg.norm(R @ chest + t))
+    ref = float(cfg["camera_prior"]["distance"])
+    tol = float(cfg["pnp_distance_tolerance"])
+    return ref / tol <= d <= ref * tol
+
+
+def _choose_by_consistency(cands, obs, K, R, t, status, frames, prior_margin=1.0):
+    """Candidate cameras per view chosen by leave-one-out multi-view consistency.
+
+    A uniform PnP rig replaces the uniform prior rig only when its leave-one-out error is
+    below ``prior_margin`` times the prior's (the configured rig is trusted unless clearly
+    beaten: a few body points from a narrow-baseline rig leave ambiguous configurations)."""
     uv, w, mirror = _consistency_points(obs, frames)
     live = [v for v in range(len(cands)) if cands[v]]
     if len(live) < 3:
@@ -177,6 +196,8 @@ def _choose_by_consistency(cands, obs, K, R, t, status, frames):
             st[v] = key
         s, _ = score(Rs, ts)
         log.info("camera init: uniform rig %r -> leave-one-out median %.2f px", name, s)
+        if name == "prior":
+            s = s * prior_margin
         if s < best_s:
             best, best_s = (Rs, ts, st), s
     if best is None:
