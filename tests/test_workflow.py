@@ -93,8 +93,10 @@ def tiny_study_config(tmp_path, **extra) -> Path:
                    "eval": {"refine_steps": 0, "save_images": 2},
                    "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 4}},
         # (merged over config/config.yaml's sections: the default bases' other keys stay)
-        "ablations": {"base": {"train": {"iterations": 4}}},
-        "sweep": {"base": {"train": {"iterations": 4}}, "iterations": [2], "resolution": [],
+        # fitted like the demo avatar, so the full model and the sweep centre are `demo`
+        "ablations": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}}},
+        "sweep": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}},
+                  "iterations": [2], "resolution": [],
                   "max_points": []},
         "stitch": {"sentences": ["Why are you sad?"], "size": 64},
         "report": {"html": str(tmp_path / "report" / "index.html")},
@@ -123,10 +125,14 @@ def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
     counts = job_counts(res.stdout)
     assert counts["ablation_table"] == 1 and counts["ablations"] == 1
     # with an empty ablations.base the full model is the demo variant (trained once)
-    full = "demo" if _default_studies()[0]["base"] == {} else "abl_full"
+    base = _default_studies()[0]["base"]
+    full = "demo" if base == {} else "abl_full"
+    # the source row trains on the SMPL-X source the base does not use
+    on_gt = base.get("train", {}).get("smplx_source") == "ground_truth"
+    source_row = "abl_fitted_smplx" if on_gt else "abl_gt_smplx"
     assert planned_variants(res.stdout, "train_avatar") == {
-        full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx"}
-    assert counts["fit_smplx"] == 1  # the full model trains on fitted SMPL-X
+        full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", source_row}
+    assert counts["fit_smplx"] == 1  # one of the rows trains on fitted SMPL-X
     assert f"{tmp_path}/studio6/ablations.parquet" in res.stdout
 
 

@@ -22,6 +22,8 @@ A camera far from every training camera (angle, seen from the body centre, above
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import os
 import time
@@ -279,6 +281,10 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, body, data: SceneData, va
         merged = to_dict(cfg)
         merged["eval"].update(overrides)
         cfg = avatar_config(merged)
+    refined = state.get("viewmats")
+    if refined is not None and tuple(refined.shape) == tuple(data.viewmats.shape):
+        # the cameras the avatar was trained with (train.refine_cameras); unchanged otherwise
+        data = dataclasses.replace(data, viewmats=refined.to(data.viewmats))
     ev = Evaluator(model, smplx, body, data, cfg, state["split"], rasterize, device)
     per_image = ev.run(image_dir)
     return summarize(per_image, state["scene"], variant, state["seconds"], cfg,

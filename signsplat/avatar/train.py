@@ -25,6 +25,7 @@ import pandas as pd
 import torch
 from torch import nn
 
+from signsplat.avatar.cameras import CameraRefinement
 from signsplat.avatar.config import AvatarConfig, to_dict
 from signsplat.avatar.data import SMPLX_BLOCKS, SceneData, split_frames, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr
@@ -135,6 +136,21 @@ def _content_box(a: torch.Tensor, b: torch.Tensor, margin: int) -> tuple[int, in
     return max(y0, 0), min(y1, h), max(x0, 0), min(x1, w)
 
 
+def cameras_refined(cfg: AvatarConfig) -> bool:
+    """Whether the training cameras are refined: ``train.refine_cameras`` on, or auto and
+    the cameras come from the fit (ground-truth cameras are exact)."""
+    mode = cfg.train.refine_cameras
+    return mode is True or (mode == "auto" and cfg.train.smplx_source == "fitted")
+
+
+def subject_centre(data: SceneData) -> torch.Tensor:
+    """(3,) mean SMPL-X translation over the frames (the cameras' rotation centre)."""
+    t = data.smplx.get("transl")
+    if t is None or t.numel() == 0:
+        return torch.zeros(3)
+    return t.reshape(-1, 3).mean(0).float()
+
+
 @dataclass
 class Split:
     train_frames: np.ndarray  # indices into data.frames
@@ -185,8 +201,10 @@ class AvatarTrainer:
         self.step = 0
         self.seconds = 0.0
         self.log_rows: list[dict[str, Any]] = []
+        self.cameras = CameraRefinement(
+            data.viewmats, subject_centre(data), self.split.train_views,
+            cameras_refined(cfg)).to(self.device)
         self.optimizer = self._make_optimizer()
-        self.viewmats = data.viewmats.to(self.device)
         self.Ks = data.Ks.to(self.device)
 
     # ------------------------------------------------------------------ setup
@@ -207,6 +225,8 @@ class AvatarTrainer:
         if self.smplx.learnable:
             groups.append({"params": list(self.smplx.parameters()), "lr": t.lr_smplx,
                            "name": "smplx"})
+        if self.cameras.enabled:
+            groups.append({"params": [self.cameras.raw], "lr": t.lr_cameras, "name": "cameras"})
         return torch.optim.Adam(groups, eps=1e-15)
 
     @property
@@ -231,10 +251,18 @@ class AvatarTrainer:
         vi = torch.randint(len(tv), (n,), generator=self.sampler)
         return [(int(tf[f]), int(tv[v])) for f, v in zip(fi, vi)]
 
-    def image_terms(self, g, b: int, joints: torch.Tensor, frame_i: int, view_i: int
+    @property
+    def viewmats(self) -> torch.Tensor:
+        """(V, 4, 4) world-to-camera matrices in use (refined when ``train.refine_cameras``)."""
+        return self.cameras.viewmats()
+
+    def image_terms(self, g, b: int, joints: torch.Tensor, frame_i: int, view_i: int,
+                    viewmats: torch.Tensor | None = None
                     ) -> tuple[dict[str, torch.Tensor], float, dict]:
-        """Loss terms of frame ``b`` of ``g`` seen from camera ``view_i``: (terms, psnr, meta)."""
-        vm = self.viewmats[view_i:view_i + 1]
+        """Loss terms of frame ``b`` of ``g`` seen from camera ``view_i``: (terms, psnr, meta).
+        ``viewmats``: the cameras of this step (default: :attr:`viewmats`)."""
+        viewmats = self.viewmats if viewmats is None else viewmats
+        vm = viewmats[view_i:view_i + 1]
         colors, alphas, meta = render_gaussians(self.rasterize, g, b, vm,
                                                 self.Ks[view_i:view_i + 1], self.data.width,
                                                 self.data.height, self.background,
@@ -254,7 +282,7 @@ class AvatarTrainer:
         if c.w_hand > 0:
             hand = []
             for part in ("left_hand", "right_hand"):
-                box = part_box(joints, part, self.viewmats[view_i], self.Ks[view_i],
+                box = part_box(joints, part, viewmats[view_i].detach(), self.Ks[view_i],
                                self.data.width, self.data.height, self.cfg.eval.crop_size.hands)
                 if box is not None:
                     x0, y0, x1, y1 = box
@@ -279,8 +307,9 @@ class AvatarTrainer:
         out, g = self.pose(torch.tensor([f for f, _ in pairs]), sh)
         metas, psnrs, losses, terms_sum = [], [], [], {}
         n = len(pairs)
+        viewmats = self.viewmats
         for b, (fi, vi) in enumerate(pairs):
-            terms, p, meta = self.image_terms(g, b, out.joints[b], fi, vi)
+            terms, p, meta = self.image_terms(g, b, out.joints[b], fi, vi, viewmats)
             losses.append(sum(terms.values()))
             metas.append(meta)
             psnrs.append(p)
@@ -302,6 +331,8 @@ class AvatarTrainer:
         row = {"step": self.step, "seconds": self.seconds, "loss": total,
                "psnr": float(np.mean(psnrs)), "num_points": self.model.num_points,
                "sh_degree": sh, **terms_sum, **stats}
+        if self.cameras.enabled:
+            row.update(self.cameras.summary())
         if self.step % self.cfg.train.log_every == 0 or self.step == 1:
             self.log_rows.append(row)
         return row
@@ -315,6 +346,9 @@ class AvatarTrainer:
             "config": to_dict(self.cfg),
             "model": self.model.state_dict(),
             "smplx": self.smplx.state_dict(),
+            "cameras": self.cameras.state_dict(),
+            # refined cameras, which evaluation uses in place of the input ones (None: as given)
+            "viewmats": self.viewmats.detach().cpu() if self.cameras.enabled else None,
             "optimizer": self.optimizer.state_dict(),
             "strategy": self.strategy_state,
             "sampler": self.sampler.get_state(),
@@ -336,6 +370,8 @@ class AvatarTrainer:
         self.model.resize_like(state["model"])
         self.model.load_state_dict(state["model"])
         self.smplx.load_state_dict(state["smplx"])
+        if "cameras" in state:
+            self.cameras.load_state_dict(state["cameras"])
         self.optimizer = self._make_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.strategy_state = state["strategy"]

@@ -88,7 +88,11 @@ def avatar_smplx_source(wildcards):
         return "fitted"
     if wildcards.scene not in SCENES:
         if want == "ground_truth":
-            raise ValueError(f"scene {wildcards.scene!r} has no ground-truth SMPL-X")
+            raise ValueError(
+                f"avatar variant {wildcards.variant!r} asks for train.smplx_source: "
+                f"ground_truth, but sequence {wildcards.scene!r} is footage with no ground-truth "
+                f"SMPL-X; allowed here: fitted (for the studies: set it in ablations.base / "
+                f"sweep.base of the config)")
         return "fitted"
     return "ground_truth"
 
