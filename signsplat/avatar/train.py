@@ -203,7 +203,8 @@ class AvatarTrainer:
         self.log_rows: list[dict[str, Any]] = []
         self.cameras = CameraRefinement(
             data.viewmats, subject_centre(data), self.split.train_views,
-            cameras_refined(cfg)).to(self.device)
+            # one camera has no other to agree with: its correction is the gauge, so none
+            cameras_refined(cfg) and len(self.split.train_views) > 1).to(self.device)
         self.optimizer = self._make_optimizer()
         self.Ks = data.Ks.to(self.device)
 
