@@ -51,7 +51,9 @@ TRAIN_LOG = register_table(Table(
         "num_points": "int64 Gaussians after the step",
         "sh_degree": "int64 SH degree in use",
     },
-    extra_columns=True,  # one column per loss term (l1, dssim, hand, reg_*)
+    # one column per loss term (l1, dssim, hand, reg_*), and with train.refine_cameras the
+    # camera corrections so far: camera_rotation_deg_max/_mean, camera_shift_mm_max/_mean
+    extra_columns=True,
 ))
 
 RasterizeFn = Callable[..., tuple[torch.Tensor, torch.Tensor, dict]]
