@@ -38,7 +38,8 @@ from signsplat.avatar.data import SceneData, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr, ssim
 from signsplat.avatar.model import AvatarModel
 from signsplat.avatar.regions import PART_JOINTS, part_box
-from signsplat.avatar.train import RasterizeFn, SmplxParams, default_rasterizer, render_gaussians
+from signsplat.avatar.train import (RasterizeFn, SmplxParams, default_rasterizer, eval_eps2d,
+                                    render_gaussians)
 from signsplat.io.images import write_png
 from signsplat.io.tables import Table, register_table
 
@@ -120,6 +121,7 @@ class Evaluator:
         self.background = torch.tensor(cfg.train.background, dtype=torch.float32)
         self.lpips = load_lpips(cfg.loss.lpips_weights)
         self.sh_degree = cfg.model.sh_degree
+        self.eps2d = eval_eps2d(cfg.train.resolution, data.width)
         self.model.requires_grad_(False)
 
     def render(self, params: dict[str, torch.Tensor], view_i: int):
@@ -130,7 +132,7 @@ class Evaluator:
         K = self.data.Ks[view_i:view_i + 1].to(self.device)
         colors, _, _ = render_gaussians(self.rasterize, g, 0, vm, K, self.data.width,
                                         self.data.height, self.background.to(self.device),
-                                        self.cfg.train.render_backend)
+                                        self.cfg.train.render_backend, self.eps2d)
         return colors[0].permute(2, 0, 1).clamp(0, 1), out
 
     def frame_params(self, frame_i: int) -> dict[str, torch.Tensor]:

@@ -240,3 +240,27 @@ def test_colour_init_from_images_starts_closer_to_the_images(scene):
     assert l1(init) < 0.8 * l1(grey), (l1(init), l1(grey))
     unseen = init.model.sh_dc[:, 0].sub(grey.model.sh_dc[:, 0]).abs().sum(-1) == 0
     assert bool(torch.isfinite(init.model.sh_dc).all()) and bool(unseen.any())
+
+
+def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(scene):
+    from signsplat.avatar.train import EPS2D, eval_eps2d
+
+    assert eval_eps2d(0, 256) == EPS2D and eval_eps2d(256, 256) == EPS2D
+    assert eval_eps2d(128, 256) == pytest.approx(4 * EPS2D)
+    # an avatar whose Gaussians are far below a pixel relies on the dilation for coverage:
+    # with the footprint kept, rendering at twice the size covers as much of the body
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"color_init": "constant"}))
+    with torch.no_grad():
+        tr.model.scale_raw.fill_(-20.0)  # scales at scale_min (0.2 mm)
+        out, g = tr.pose(torch.tensor([0]), 0)
+    vm, K = data.viewmats[:1], data.Ks[:1].clone()
+    cover = []
+    for size, eps in ((SIZE, EPS2D), (2 * SIZE, EPS2D), (2 * SIZE, eval_eps2d(SIZE, 2 * SIZE))):
+        Ks = K.clone()
+        Ks[:, :2] *= size / SIZE
+        _, alpha, _ = render_gaussians(rasterization, g, 0, vm, Ks, size, size, torch.ones(3),
+                                       "cpu", eps)
+        cover.append(float(alpha.mean()))
+    assert cover[1] < 0.8 * cover[0], cover  # holes at twice the size with the same dilation
+    assert cover[2] > 0.9 * cover[0], cover
