@@ -9,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker as mticker  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
@@ -45,6 +46,16 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
     """One panel per metric: quality against wall-clock seconds (log x), the Pareto front as a
     line, the ``highlight`` setting (the demo configuration) as a star."""
     metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
+    if "smplx_source" in df.columns and df["smplx_source"].nunique() > 1:
+        # settings trained on another SMPL-X source than most are not like for like: say so
+        usual = df["smplx_source"].mode().iloc[0]
+        other = (df["smplx_source"] != usual).to_numpy()
+        names = [f"{v} ({src} SMPL-X)" if o else str(v)
+                 for v, src, o in zip(df[label], df["smplx_source"], other)]
+        if highlight is not None:
+            highlight = next((n for v, n in zip(df[label], names) if str(v) == highlight),
+                             highlight)
+        df = df.assign(**{label: names})
     fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
                              squeeze=False)
     for ax, m in zip(axes[0], metrics):
@@ -60,13 +71,16 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
         if highlight is not None and (d[label] == highlight).any():
             h = d[d[label] == highlight]
             ax.scatter(h[seconds], h[m], marker="*", s=260, facecolor="gold",
-                       edgecolor="black", label=f"demo ({highlight})", zorder=5)
+                       edgecolor="black", label=f"make demo: {highlight}", zorder=5)
         if (d[seconds] > 0).all() and len(d) > 1:
             ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # no overlapping 2x10^2...
+            ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.margins(x=0.25)  # room for the labels of the outermost points
         ax.set_xlabel(xlabel)
         ax.set_ylabel(m.upper())
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")
+        ax.legend(fontsize=8, loc="best")
     if not metrics:
         axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
     if title:
