@@ -168,17 +168,27 @@ def _resolve_size(path, contract, declared: tuple, configured) -> tuple[int, int
     return None
 
 
-def load_segmenter(spec: SegmenterSpec, threads: int = 1) -> LoadedModel:
-    """Open a segmentation model and check it against the MODNet-style contract."""
-    contract = "segmentation (MODNet-style)"
-    sess = open_session(spec.path, threads, "segmentation model")
+def _open_image_model(path, threads: int, what: str, contract: str, batch):
+    """Open an ONNX model with one image input (batch, 3, H, W); ``batch`` is how the
+    contract names the batch axis in messages (None = any N). Returns (session, inputs,
+    outputs, input shape)."""
+    sess = open_session(path, threads, what)
     inputs, outputs = sess.get_inputs(), sess.get_outputs()
+    n = "N" if batch is None else str(batch)
     if len(inputs) != 1:
-        _fail(spec.path, contract, "inputs", "1 input (N, 3, H, W)",
+        _fail(path, contract, "inputs", f"1 input ({n}, 3, H, W)",
               f"{len(inputs)} inputs {[_fmt(_shape(i)) for i in inputs]}")
     ishape = _shape(inputs[0])
     if not _matches(ishape, (None, 3, None, None)):
-        _fail(spec.path, contract, "input", (None, 3, None, None), ishape)
+        _fail(path, contract, "input", (batch, 3, None, None), ishape)
+    return sess, inputs, outputs, ishape
+
+
+def load_segmenter(spec: SegmenterSpec, threads: int = 1) -> LoadedModel:
+    """Open a segmentation model and check it against the MODNet-style contract."""
+    contract = "segmentation (MODNet-style)"
+    sess, inputs, outputs, ishape = _open_image_model(spec.path, threads, "segmentation model",
+                                                      contract, None)
     if not 0 <= spec.output_index < len(outputs):
         _fail(spec.path, contract, f"output index {spec.output_index}",
               "an output (N, 1, H, W)", f"{len(outputs)} output(s)")
@@ -205,14 +215,8 @@ def load_segmenter(spec: SegmenterSpec, threads: int = 1) -> LoadedModel:
 def load_keypointer(spec: KeypointSpec, threads: int = 1) -> LoadedModel:
     """Open a keypoint model and check it against the RTMPose/RTMW SimCC contract."""
     contract = "RTMPose/RTMW SimCC keypoint"
-    sess = open_session(spec.path, threads, "keypoint model")
-    inputs, outputs = sess.get_inputs(), sess.get_outputs()
-    if len(inputs) != 1:
-        _fail(spec.path, contract, "inputs", "1 input (1, 3, H, W)",
-              f"{len(inputs)} inputs {[_fmt(_shape(i)) for i in inputs]}")
-    ishape = _shape(inputs[0])
-    if not _matches(ishape, (None, 3, None, None)):
-        _fail(spec.path, contract, "input", (1, 3, None, None), ishape)
+    sess, inputs, outputs, ishape = _open_image_model(spec.path, threads, "keypoint model",
+                                                      contract, 1)
     size = _resolve_size(spec.path, contract, ishape, spec.input_size)
     if size is None:
         _fail(spec.path, contract, "input size", "static H, W or keypoints.input_size set",
