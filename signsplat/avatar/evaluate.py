@@ -122,6 +122,7 @@ class Evaluator:
         self.lpips = load_lpips(cfg.loss.lpips_weights)
         self.sh_degree = cfg.model.sh_degree
         self.eps2d = eval_eps2d(cfg.train.resolution, data.width)
+        self.refine_kept = self.refine_tried = 0  # test-time refinements kept / tried
         self.model.requires_grad_(False)
 
     def render(self, params: dict[str, torch.Tensor], view_i: int):
@@ -141,21 +142,36 @@ class Evaluator:
                     self.smplx.get(torch.tensor([frame_i], device=self.device)).items()}
 
     def refine_pose(self, frame_i: int, views: np.ndarray) -> dict[str, torch.Tensor]:
-        """Test-time pose refinement of frame ``frame_i`` on its images from ``views``."""
+        """Test-time pose refinement of frame ``frame_i`` on its images from ``views``.
+
+        Adam moves every free parameter by about ``refine_lr`` per step whatever its gradient,
+        so from a pose that is already right (ground-truth SMPL-X) the refinement can drift away
+        (measured on studio6: 29.0 dB before, 23.7 dB after). The refined pose is therefore kept
+        only if its image loss summed over ``views`` is lower than the starting pose's."""
         params = self.frame_params(frame_i)
+        start = {k: v.clone() for k, v in params.items()}
         free = {k: v.requires_grad_(True) for k, v in params.items() if k in REFINE_BLOCKS}
         opt = torch.optim.Adam(list(free.values()), lr=self.cfg.eval.refine_lr)
-        c = self.cfg.loss
         for step in range(self.cfg.eval.refine_steps):
             vi = int(views[step % len(views)])
             opt.zero_grad(set_to_none=True)
-            render, _ = self.render(params, vi)
-            gt, _ = target(self.data, vi, frame_i, self.background)
-            loss = sum(image_loss(render[None], gt[None].to(self.device), c.w_l1, c.w_dssim,
-                                  c.ssim_window).values())
+            loss = self._image_loss(params, frame_i, vi)
             loss.backward()
             opt.step()
-        return {k: v.detach() for k, v in params.items()}
+        refined = {k: v.detach() for k, v in params.items()}
+        with torch.no_grad():
+            before = sum(float(self._image_loss(start, frame_i, int(v))) for v in views)
+            after = sum(float(self._image_loss(refined, frame_i, int(v))) for v in views)
+        self.refine_kept += after < before
+        self.refine_tried += 1
+        return refined if after < before else start
+
+    def _image_loss(self, params: dict[str, torch.Tensor], frame_i: int, view_i: int):
+        c = self.cfg.loss
+        render, _ = self.render(params, view_i)
+        gt, _ = target(self.data, view_i, frame_i, self.background)
+        return sum(image_loss(render[None], gt[None].to(self.device), c.w_l1, c.w_dssim,
+                              c.ssim_window).values())
 
     def score(self, render: torch.Tensor, frame_i: int, view_i: int, joints: torch.Tensor
               ) -> list[dict]:
@@ -237,6 +253,9 @@ class Evaluator:
                             saved < self.cfg.eval.save_images:
                         self._save(image_dir, render, frame_i, view_i)
                         saved += 1
+        if self.refine_tried:
+            log.info("test-time refinement lowered the image loss of %d of %d frames (the "
+                     "others keep their input pose)", self.refine_kept, self.refine_tried)
         return pd.DataFrame(rows)
 
     def _save(self, image_dir, render, frame_i, view_i) -> None:

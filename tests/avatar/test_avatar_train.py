@@ -264,3 +264,16 @@ def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(sc
         cover.append(float(alpha.mean()))
     assert cover[1] < 0.8 * cover[0], cover  # holes at twice the size with the same dilation
     assert cover[2] > 0.9 * cover[0], cover
+
+
+def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path):
+    # a learning rate far too high throws every pose away from its (exact) input: the input
+    # pose must be kept, so the refined scores equal the unrefined ones
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "smplx_source": "ground_truth"}))
+    tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
+    df = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", None,
+                             overrides={"refine_steps": 4, "refine_lr": 1.0})
+    nov = df[df.split == "novel_pose"].sort_values(["protocol", "part", "metric"])
+    a, b = nov[~nov.refine], nov[nov.refine]
+    np.testing.assert_array_equal(a.value.to_numpy(), b.value.to_numpy())
