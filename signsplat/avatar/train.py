@@ -36,6 +36,7 @@ from signsplat.avatar.regularize import Regularizer, displacement_terms
 from signsplat.avatar.strategy import MeshDensifyStrategy
 from signsplat.avatar.upsample import upsample_mesh
 from signsplat.io.atomic import atomic_path
+from signsplat.render import DEFAULT_EPS2D
 from signsplat.io.tables import Table, register_table
 
 log = logging.getLogger(__name__)
@@ -106,12 +107,9 @@ class SmplxParams(nn.Module):
         return out
 
 
-EPS2D = 0.3  # the rasterizer's default screen-space dilation (pixels^2) used in training
-
-
 def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, Ks: torch.Tensor,
                      width: int, height: int, background: torch.Tensor,
-                     backend: str, eps2d: float = EPS2D
+                     backend: str, eps2d: float = DEFAULT_EPS2D
                      ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Render frame ``b`` of posed Gaussians ``g`` from C cameras -> (C,H,W,3), (C,H,W,1), meta.
     ``eps2d``: screen-space dilation in pixels^2 (see :func:`eval_eps2d`)."""
@@ -133,9 +131,9 @@ def eval_eps2d(train_resolution: int, width: int) -> float:
     128 px it covers four times the world-space area of 0.3 px^2 at 256 px, and its Gaussians
     shrink to rely on it. Rendered at 256 px with 0.3 they leave holes (measured on studio6:
     17.6 dB). Keeping the dilation's world-space footprint keeps what was learned."""
-    if train_resolution <= 0 or train_resolution == width:
-        return EPS2D
-    return EPS2D * (width / train_resolution) ** 2
+    if train_resolution <= 0:
+        return DEFAULT_EPS2D
+    return DEFAULT_EPS2D * (width / train_resolution) ** 2
 
 
 def _content_box(a: torch.Tensor, b: torch.Tensor, margin: int) -> tuple[int, int, int, int]:
@@ -277,11 +275,9 @@ class AvatarTrainer:
         return self.cameras.viewmats()
 
     def image_terms(self, g, b: int, joints: torch.Tensor, frame_i: int, view_i: int,
-                    viewmats: torch.Tensor | None = None
-                    ) -> tuple[dict[str, torch.Tensor], float, dict]:
-        """Loss terms of frame ``b`` of ``g`` seen from camera ``view_i``: (terms, psnr, meta).
-        ``viewmats``: the cameras of this step (default: :attr:`viewmats`)."""
-        viewmats = self.viewmats if viewmats is None else viewmats
+                    viewmats: torch.Tensor) -> tuple[dict[str, torch.Tensor], float, dict]:
+        """Loss terms of frame ``b`` of ``g`` seen from camera ``view_i`` of ``viewmats`` (the
+        step's cameras, :attr:`viewmats`): (terms, psnr, meta)."""
         vm = viewmats[view_i:view_i + 1]
         colors, alphas, meta = render_gaussians(self.rasterize, g, b, vm,
                                                 self.Ks[view_i:view_i + 1], self.data.width,

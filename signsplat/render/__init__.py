@@ -68,8 +68,9 @@ import torch
 from torch import Tensor
 
 from . import _gsplat
+from ._constants import DEFAULT_EPS2D
 
-__all__ = ["rasterization", "BACKENDS", "RENDER_MODES", "select_backend"]
+__all__ = ["rasterization", "BACKENDS", "DEFAULT_EPS2D", "RENDER_MODES", "select_backend"]
 
 BACKENDS = ("auto", "cpu", "reference", "gsplat")
 RENDER_MODES = ("RGB", "D", "ED", "RGB+D", "RGB+ED")
@@ -149,7 +150,7 @@ def rasterization(
     height: int,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
-    eps2d: float = 0.3,
+    eps2d: float = DEFAULT_EPS2D,
     sh_degree: int | None = None,
     backgrounds: Tensor | None = None,
     render_mode: str = "RGB",

@@ -20,5 +20,8 @@ QUAT_EPS2 = 1e-24
 DIR_EPS2 = 1e-24
 #: Radii are clamped to this many pixels before the cast to int32.
 MAX_RADIUS = 1.0e9
+#: Default screen-space dilation ``eps2d`` in pixels^2 (gsplat's default); callers that render
+#: above the resolution an avatar was trained at scale it (``signsplat.avatar.train.eval_eps2d``).
+DEFAULT_EPS2D = 0.3
 #: Tile edge used internally by the CPU kernel (results do not depend on the tile size).
 CPU_TILE = 16

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from . import _ewa
-from ._constants import ALPHA_THRESHOLD, MAX_EXTENT_SIGMA, MAX_RADIUS, QUAT_EPS2
+from ._constants import ALPHA_THRESHOLD, DEFAULT_EPS2D, MAX_EXTENT_SIGMA, MAX_RADIUS, QUAT_EPS2
 
 
 def quat_to_rotmat(quats: Tensor) -> tuple[Tensor, ...]:
@@ -37,7 +37,7 @@ def covariance(quats: Tensor, scales: Tensor) -> tuple[Tensor, ...]:
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, viewmats: Tensor,
-            Ks: Tensor, width: int, height: int, eps2d: float = 0.3, near_plane: float = 0.01,
+            Ks: Tensor, width: int, height: int, eps2d: float = DEFAULT_EPS2D, near_plane: float = 0.01,
             far_plane: float = 1e10, antialiased: bool = False) -> dict[str, Tensor]:
     """Project N Gaussians into C pinhole cameras.
 

@@ -243,7 +243,8 @@ def test_colour_init_from_images_starts_closer_to_the_images(scene):
 
 
 def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(scene):
-    from signsplat.avatar.train import EPS2D, eval_eps2d
+    from signsplat.avatar.train import eval_eps2d
+    from signsplat.render import DEFAULT_EPS2D as EPS2D
 
     assert eval_eps2d(0, 256) == EPS2D and eval_eps2d(256, 256) == EPS2D
     assert eval_eps2d(128, 256) == pytest.approx(4 * EPS2D)
