@@ -115,27 +115,37 @@ class TinySegmenter(nn.Module):
 
 
 class TinySimCC(nn.Module):
-    """Top-down whole-body keypoints in the RTMPose SimCC output contract."""
+    """Top-down whole-body keypoints in the RTMPose SimCC output contract.
 
-    stride = 4
+    ``out_stride`` 4 (default) decodes to the encoder's stride-4 features; 2 adds one more
+    decoder level on the stride-2 features (four times the heatmap cells, for sub-4-pixel
+    localisation at little cost: the level is narrow and the encoder is unchanged).
+    """
 
     def __init__(self, num_keypoints: int = 133, split_ratio: int = 2,
-                 widths=(16, 24, 48, 96, 128), head_width: int = 64):
+                 widths=(16, 24, 48, 96, 128), head_width: int = 64, out_stride: int = 4):
         super().__init__()
+        if out_stride not in (2, 4):
+            raise ValueError(f"TinySimCC out_stride must be 2 or 4, got {out_stride}")
         w = widths
         self.split_ratio = split_ratio
+        self.stride = out_stride
         self.encoder = Encoder(widths)
         self.up16 = Up(w[4], w[3], 96)
         self.up8 = Up(96, w[2], head_width)
         self.up4 = Up(head_width, w[1], head_width)
+        self.up2 = Up(head_width, w[0], head_width) if out_stride == 2 else None
         self.head = nn.Conv2d(head_width, num_keypoints, 1)
 
     def heatmap_logits(self, x):
-        """(N, 3, H, W) -> heatmap logits (N, K, H/4, W/4); cell j centre at crop 4j + 1.5."""
-        _, f4, f8, f16, f32 = self.encoder(x)
+        """(N, 3, H, W) -> heatmap logits (N, K, H/s, W/s), s = ``stride``; cell j's centre
+        is at input pixel s*j + (s-1)/2."""
+        f2, f4, f8, f16, f32 = self.encoder(x)
         y = self.up16(f32, f16)
         y = self.up8(y, f8)
         y = self.up4(y, f4)
+        if self.up2 is not None:
+            y = self.up2(y, f2)
         return self.head(y)
 
     def simcc(self, logits):
@@ -285,23 +295,42 @@ class HandNet(nn.Module):
 class CascadeSimCC(nn.Module):
     """Whole-body keypoints in the RTMPose SimCC contract, hands refined at full resolution.
 
-    Input (N, 3, H, W) normalised crop (default 256 x 192). Stage 1 (:class:`TinySimCC` body)
-    sees the crop average-pooled 2x and predicts 133 heatmaps at stride 8 of the input. Each
-    hand's centre is the score-weighted mean of its 21 coarse keypoints; a ``hand_side``-pixel
-    square around it is resampled from the full-resolution input (grid_sample, right hands
-    mirrored) to ``hand_size`` pixels and :class:`HandNet` predicts the hand's 21 keypoints,
-    which replace the coarse ones. Every keypoint's sub-cell peak and probability are emitted as
-    SimCC vectors (:func:`simcc_profile`), so arg-max/max decoding gives them back.
+    Input (N, 3, H, W) normalised crop (default 256 x 192).
+
+    1. Coarse stage (:class:`TinySimCC`, ``coarse_widths``) on the crop average-pooled 2x:
+       133 heatmaps at stride ``2 * coarse_out_stride`` of the input.
+    2. Each hand's centre is the score-weighted mean of its 21 coarse keypoints; a
+       ``hand_side``-pixel square around it is resampled from the full-resolution input
+       (grid_sample, right hands mirrored) to ``hand_size`` pixels and :class:`HandNet`
+       predicts the hand's 21 keypoints.
+    3. ``hand_passes`` > 1: the crop is re-centred on the score-weighted mean of the previous
+       pass's points (moved in proportion to their mean probability, so an empty crop stays
+       put) and the hand network runs again; a hand the coarse stage found only at the edge
+       of its crop is seen whole the second time.
+    4. The hand points replace the coarse ones; the body wrists (COCO 9, 10) are the same
+       points as the hand roots (91, 112) and take the hand network's location where its
+       probability exceeds ``wrist_min_prob``.
+
+    Every keypoint's sub-cell peak and probability are emitted as SimCC vectors
+    (:func:`simcc_profile`), so arg-max/max decoding gives them back.
     """
 
+    WRISTS = ((9, 0), (10, 21))  # (body index, index within the 42 hand points)
+
     def __init__(self, in_hw: tuple[int, int] = (256, 192), split_ratio: int = 2,
-                 hand_size: int = 64, hand_side: float = 80.0, num_keypoints: int = 133):
+                 hand_size: int = 64, hand_side: float = 80.0, num_keypoints: int = 133,
+                 coarse_widths=(16, 24, 48, 96, 128), coarse_head: int = 64,
+                 coarse_out_stride: int = 4, hand_passes: int = 1,
+                 wrist_min_prob: float | None = None):
         super().__init__()
         self.in_hw = tuple(in_hw)
         self.split_ratio = split_ratio
         self.hand_size = hand_size
         self.hand_side = float(hand_side)
-        self.coarse = TinySimCC(num_keypoints, split_ratio)
+        self.hand_passes = int(hand_passes)
+        self.wrist_min_prob = wrist_min_prob
+        self.coarse = TinySimCC(num_keypoints, split_ratio, tuple(coarse_widths), coarse_head,
+                                coarse_out_stride)
         self.hand = HandNet()
         self.coarse_stride = 2 * self.coarse.stride  # input pixels per coarse cell
 
@@ -334,9 +363,9 @@ class CascadeSimCC(nn.Module):
                 hs.reshape(n, 42))
 
     @staticmethod
-    def _centers(px, py, score):
+    def _centers(px, py, score, slices=HAND_SLICES):
         out = []
-        for a, b in HAND_SLICES:
+        for a, b in slices:
             wgt = score[:, a:b] + 1e-4
             out.append(torch.stack([(wgt * px[:, a:b]).sum(1), (wgt * py[:, a:b]).sum(1)], -1)
                        / wgt.sum(1, keepdim=True))
@@ -349,13 +378,33 @@ class CascadeSimCC(nn.Module):
         cx, cy, score = peak_subcell(coarse_logits)
         return self._centers(cx * s + (s - 1) / 2, cy * s + (s - 1) / 2, score)
 
+    def recenter(self, centers: torch.Tensor, hx: torch.Tensor, hy: torch.Tensor,
+                 hs: torch.Tensor) -> torch.Tensor:
+        """Next pass's crop centres (N, 2, 2) from this pass's hand points (N, 42): the
+        score-weighted mean, reached in proportion to the hand's mean probability (x2,
+        capped at 1), so a crop where nothing was found stays where it was."""
+        mean = self._centers(hx, hy, hs, ((0, 21), (21, 42)))
+        conf = torch.stack([hs[:, :21].mean(1), hs[:, 21:].mean(1)], 1)  # (N, 2)
+        step = (2.0 * conf).clamp(max=1.0)[..., None]
+        return centers + step * (mean - centers)
+
     def forward(self, x):
         s = self.coarse_stride
         cx, cy, score = peak_subcell(self.coarse_logits(x))
         px, py = cx * s + (s - 1) / 2, cy * s + (s - 1) / 2
         centers = self._centers(px, py, score)
-        hl = self.hand(self.hand_crops(x, centers))
-        hxp, hyp, hs = self.hand_points(hl, centers)
+        for i in range(self.hand_passes):
+            if i:
+                centers = self.recenter(centers, hxp, hyp, hs)
+            hl = self.hand(self.hand_crops(x, centers))
+            hxp, hyp, hs = self.hand_points(hl, centers)
+        if self.wrist_min_prob is not None:
+            for body, j in self.WRISTS:
+                take = hs[:, j] > self.wrist_min_prob
+                px = torch.cat([px[:, :body], torch.where(take, hxp[:, j], px[:, body])[:, None],
+                                px[:, body + 1:]], 1)
+                py = torch.cat([py[:, :body], torch.where(take, hyp[:, j], py[:, body])[:, None],
+                                py[:, body + 1:]], 1)
         a0 = HAND_SLICES[0][0]
         px = torch.cat([px[:, :a0], hxp], 1)
         py = torch.cat([py[:, :a0], hyp], 1)

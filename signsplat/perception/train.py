@@ -51,7 +51,12 @@ class TrainConfig:
     kp_steps: int = 800
     kp_batch: int = 24
     kp_input: tuple[int, int] = (256, 192)   # crop (H, W); the coarse stage sees it pooled 2x
-    kp_sigma: float = 1.25           # Gaussian sigma in coarse heatmap cells (stride 8)
+    kp_sigma: float = 1.25           # Gaussian sigma in coarse heatmap cells
+    kp_coarse_widths: tuple[int, ...] = (16, 24, 48, 96, 128)  # coarse encoder channels
+    kp_coarse_head: int = 64         # coarse decoder channels
+    kp_coarse_stride: int = 4        # coarse heatmap stride of the pooled crop (2 or 4)
+    kp_hand_passes: int = 1          # hand network passes (later ones re-centred), inference
+    kp_wrist_min_prob: float | None = None  # body wrists from the hand roots above this
     hand_size: int = 64              # hand crop resampled to hand_size x hand_size pixels
     hand_frac: float = 0.28          # hand crop side as a fraction of the crop height
     hand_jitter: float = 5.0         # hand-centre jitter in training (pixels at 256 rows)
@@ -71,7 +76,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict | None) -> "TrainConfig":
         d = dict(d or {})
-        for key in ("seg_size", "kp_input"):
+        for key in ("seg_size", "kp_input", "kp_coarse_widths"):
             if key in d:
                 d[key] = tuple(d[key])
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
@@ -364,6 +369,15 @@ def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig,
     return step, losses
 
 
+def keypoint_net(cfg: TrainConfig) -> CascadeSimCC:
+    """The keypoint network that ``cfg`` describes (untrained)."""
+    return CascadeSimCC(cfg.kp_input, hand_size=cfg.hand_size,
+                        hand_side=cfg.hand_frac * cfg.kp_input[0],
+                        coarse_widths=cfg.kp_coarse_widths, coarse_head=cfg.kp_coarse_head,
+                        coarse_out_stride=cfg.kp_coarse_stride, hand_passes=cfg.kp_hand_passes,
+                        wrist_min_prob=cfg.kp_wrist_min_prob)
+
+
 def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
                     log=None, resume: str | os.PathLike | None = None) -> dict:
     """Train :class:`CascadeSimCC` and export it to ONNX.
@@ -381,7 +395,7 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     torch.set_num_threads(cfg.threads)
     hw = cfg.kp_input
     side = cfg.hand_frac * hw[0]
-    net = CascadeSimCC(hw, hand_size=cfg.hand_size, hand_side=side)
+    net = keypoint_net(cfg)
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     cap = cfg.kp_max_minutes or cfg.max_minutes
     t0 = time.perf_counter()

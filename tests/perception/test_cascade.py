@@ -72,3 +72,47 @@ def test_hand_crop_sampling_matches_the_target_mapping():
         v = (y - c[1]) * 64 / 72 + 31.5
         vv, uu = np.unravel_index(int(crops[j].argmax()), (64, 64))
         assert abs(uu - u) <= 1.0 and abs(vv - v) <= 1.0
+
+
+def test_coarse_stage_at_stride_2_has_four_times_the_cells_and_the_same_contract():
+    from signsplat.perception.nets import TinySimCC
+
+    x = torch.randn(2, 3, 128, 96)
+    s4, s2 = TinySimCC(out_stride=4).eval(), TinySimCC(out_stride=2).eval()
+    with torch.no_grad():
+        assert s4.heatmap_logits(x).shape == (2, 133, 32, 24)
+        assert s2.heatmap_logits(x).shape == (2, 133, 64, 48)
+        for sx, sy in (s4(x), s2(x)):  # SimCC vectors: W*r and H*r bins either way
+            assert sx.shape == (2, 133, 192) and sy.shape == (2, 133, 256)
+    net = CascadeSimCC((256, 192), coarse_out_stride=2)
+    assert net.coarse_stride == 4
+
+
+def test_recenter_moves_with_confidence_and_stays_when_nothing_is_found():
+    net = CascadeSimCC((256, 192), hand_passes=2)
+    centers = torch.tensor([[[60.0, 120.0], [140.0, 110.0]]])
+    hx = torch.cat([torch.full((1, 21), 70.0), torch.full((1, 21), 150.0)], 1)
+    hy = torch.cat([torch.full((1, 21), 130.0), torch.full((1, 21), 100.0)], 1)
+    sure = torch.cat([torch.full((1, 21), 0.8), torch.zeros(1, 21)], 1)
+    new = net.recenter(centers, hx, hy, sure)
+    assert torch.allclose(new[0, 0], torch.tensor([70.0, 130.0]))  # confident: all the way
+    assert torch.allclose(new[0, 1], centers[0, 1])  # nothing found: the crop stays
+    half = net.recenter(centers, hx, hy, torch.full((1, 42), 0.25))
+    assert torch.allclose(half[0, 0], torch.tensor([65.0, 125.0]))  # mean prob 0.25: half way
+
+
+def test_body_wrists_come_from_the_hand_roots_only_when_the_hand_network_is_sure():
+    """The body wrists (COCO 9, 10) are the hand roots (91, 112): with ``wrist_min_prob`` set,
+    the output has them equal wherever the hand network's root probability is above it."""
+    from signsplat.perception.keypoints import decode_simcc
+
+    torch.manual_seed(0)
+    x = torch.randn(3, 3, 256, 192)
+    for thr, expect_equal in ((0.0, True), (1.0, False)):
+        net = CascadeSimCC((256, 192), hand_passes=2, wrist_min_prob=thr).eval()
+        with torch.no_grad():
+            sx, sy = net(x)
+        locs, _ = decode_simcc(sx.numpy(), sy.numpy(), 2)
+        same = np.abs(locs[:, [9, 10]] - locs[:, [91, 112]]).max() <= 0.5
+        assert same == expect_equal
+        assert np.isfinite(sx.numpy()).all() and np.isfinite(sy.numpy()).all()

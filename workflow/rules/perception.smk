@@ -108,8 +108,8 @@ rule train_detectors:
         f"{RESULTS}/_benchmarks/train_detectors.tsv"
     threads: 2
     resources:
-        mem_mb=8000,
-        runtime=120,
+        mem_mb=12000,
+        runtime=240,
     shell:
         "{PY} -m signsplat train-detectors --body {input.body} --glosses {input.glosses}"
         " --work {params.work} --out-dir {params.work}/models --config-json {params.cfg:q}"
