@@ -162,7 +162,7 @@ def load_sequences(config: dict, root: str | os.PathLike = ".") -> dict[str, dic
                                           f"is not a {cast.__name__}") from None
             rows.append((f"{path}: line {i}", row))
     for name in config.get("scenes", []):
-        rows.append((f"config key 'scenes'", {"sequence": name, "source": "synthetic"}))
+        rows.append(("config key 'scenes'", {"sequence": name, "source": "synthetic"}))
 
     sequences: dict[str, dict] = {}
     for where, row in rows:

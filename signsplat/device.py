@@ -21,3 +21,22 @@ def select_device(name: str = "auto") -> torch.device:
     if name != "cpu" and not name.startswith("cuda"):
         raise SignSplatError(f"unknown device {name!r}; allowed: 'auto', 'cpu', 'cuda[:N]'")
     return torch.device(name)
+
+
+def set_threads(n: int) -> None:
+    """Use ``n`` threads in torch and in the Numba rasterizer (two spinning pools on shared
+    cores are much slower than one each).
+
+    Numba first: with the OpenMP threading layer, Numba's ``set_num_threads`` launches its pool,
+    which sets the process-wide OpenMP thread count to ``NUMBA_NUM_THREADS`` and so undid an
+    earlier ``torch.set_num_threads`` (torch then ran every op on all cores while asked for one;
+    on a core shared with another job each op waited for the descheduled thread).
+    """
+    n = max(1, int(n))
+    try:
+        import numba
+
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    except (ImportError, ValueError):
+        pass
+    torch.set_num_threads(n)

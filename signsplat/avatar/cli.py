@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from signsplat.device import select_device
+from signsplat.device import select_device, set_threads
 
 log = logging.getLogger("signsplat.avatar")
 
@@ -30,18 +30,6 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
 
 
-def _threads(n: int) -> None:
-    """Use ``n`` threads in torch and in the Numba rasterizer (oversubscribing 2 cores with two
-    spinning thread pools is many times slower than one thread each)."""
-    torch.set_num_threads(n)
-    try:
-        import numba
-
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    except (ImportError, ValueError):
-        pass
-
-
 def _setup(args):
     from signsplat.avatar.config import avatar_config
     from signsplat.avatar.data import load_scene
@@ -49,7 +37,7 @@ def _setup(args):
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = avatar_config(json.loads(args.config_json), "--config-json")
-    _threads(cfg.train.threads)
+    set_threads(cfg.train.threads)
     device = select_device(args.device)
     body = BodyModel.from_file(args.body).to(device)
     data = load_scene(args.frames, args.cameras, args.smplx, cfg.train.resolution)

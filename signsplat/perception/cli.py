@@ -124,7 +124,7 @@ def train_detectors(argv: list[str]) -> int:
     p.add_argument("--which", choices=["both", "segmenter", "keypoints"], default="both")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    from signsplat.perception.train import TrainConfig, TrainJob, run_job, training_scene_specs
+    from signsplat.perception.train import TrainConfig, TrainJob, run_job
 
     tcfg = TrainConfig.from_dict(cfg["train"])
     work, out_dir = Path(a.work), Path(a.out_dir)

@@ -393,11 +393,10 @@ class CascadeSimCC(nn.Module):
         cx, cy, score = peak_subcell(self.coarse_logits(x))
         px, py = cx * s + (s - 1) / 2, cy * s + (s - 1) / 2
         centers = self._centers(px, py, score)
-        for i in range(self.hand_passes):
-            if i:
-                centers = self.recenter(centers, hxp, hyp, hs)
-            hl = self.hand(self.hand_crops(x, centers))
-            hxp, hyp, hs = self.hand_points(hl, centers)
+        hxp, hyp, hs = self.hand_points(self.hand(self.hand_crops(x, centers)), centers)
+        for _ in range(self.hand_passes - 1):
+            centers = self.recenter(centers, hxp, hyp, hs)
+            hxp, hyp, hs = self.hand_points(self.hand(self.hand_crops(x, centers)), centers)
         if self.wrist_min_prob is not None:
             for body, j in self.WRISTS:
                 take = hs[:, j] > self.wrist_min_prob

@@ -23,7 +23,7 @@ from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
 from signsplat.report import plots, runs
-from signsplat.report.collect import Results, SceneTables, bench_seconds, collect
+from signsplat.report.collect import Results, bench_seconds, collect
 
 
 @dataclass

@@ -146,8 +146,8 @@ class _VideoStage:
         from signsplat.body.keypoints import WholeBodyRegressor
         from signsplat.body.model import BodyModel
         from signsplat.device import select_device
-        from signsplat.stitch.render import (AvatarRenderer, choose_camera, set_threads,
-                                             upper_body_points)
+        from signsplat.device import set_threads
+        from signsplat.stitch.render import AvatarRenderer, choose_camera, upper_body_points
 
         logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
         set_threads(args.threads)

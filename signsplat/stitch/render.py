@@ -225,18 +225,6 @@ def batched(items: Iterable, size: int) -> Iterator[list]:
         yield chunk
 
 
-def set_threads(n: int) -> None:
-    """Use ``n`` threads in torch and in the Numba rasterizer (two spinning pools on shared
-    cores are much slower than one each)."""
-    torch.set_num_threads(max(1, n))
-    try:
-        import numba
-
-        numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
-    except (ImportError, ValueError):
-        pass
-
-
 # ---------------------------------------------------------------------------- renderer
 class AvatarRenderer:
     """Poses and renders frames of a track with a trained avatar from one camera.
