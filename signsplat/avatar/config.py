@@ -112,6 +112,7 @@ class TrainConfig:
     iterations: int = 1200
     accumulate_poses: int = 3  # poses whose losses are summed before a step (Table 5 "Acc.")
     accumulate: bool = True  # off = one pose per optimiser step
+    views_per_pose: int = 1  # cameras each sampled pose is rendered from (posing shared)
     lr_means: float = 1.0e-3  # learnable barycentric logits / normal offsets
     lr_scale: float = 5.0e-3
     lr_rotation: float = 1.0e-3

@@ -1,7 +1,8 @@
 """Training of the avatar (paper 4.1): Adam over Gaussians, networks and (optionally) SMPL-X.
 
-One optimiser step sums the losses of ``accumulate_poses`` (frame, camera) renders (the paper's
-loss accumulation; off = one render per step). Each render's loss is L1 + D-SSIM (+ LPIPS when
+One optimiser step sums the losses of ``accumulate_poses`` poses (the paper's loss accumulation;
+off = one pose per step), each rendered from ``views_per_pose`` training cameras (the posing
+and the networks run once per pose; an extra camera costs one render). Each render's loss is L1 + D-SSIM (+ LPIPS when
 available) against the ground truth with its background replaced by the training background,
 plus an extra L1 on the hand crops, plus the regularisation terms. Density control is a
 :class:`~signsplat.avatar.strategy.MeshDensifyStrategy` called around the backward pass.
@@ -260,14 +261,22 @@ class AvatarTrainer:
                        sh_degree)
         return out, g
 
-    def _sample(self) -> list[tuple[int, int]]:
+    def _sample(self) -> list[tuple[int, tuple[int, ...]]]:
+        """The step's poses: (frame index, camera indices) for ``poses_per_step`` distinct
+        training frames, each with ``views_per_pose`` distinct training cameras (fewer when
+        there are fewer cameras)."""
         tf, tv = self.split.train_frames, self.split.train_views
         n = self.poses_per_step
         fi = torch.randperm(len(tf), generator=self.sampler)[:n]
         if len(fi) < n:  # fewer training frames than poses per step
             fi = torch.randint(len(tf), (n,), generator=self.sampler)
-        vi = torch.randint(len(tv), (n,), generator=self.sampler)
-        return [(int(tf[f]), int(tv[v])) for f, v in zip(fi, vi)]
+        per = min(self.cfg.train.views_per_pose, len(tv))
+        if per == 1:
+            vi = torch.randint(len(tv), (n, 1), generator=self.sampler)
+        else:
+            vi = torch.stack([torch.randperm(len(tv), generator=self.sampler)[:per]
+                              for _ in range(n)])
+        return [(int(tf[f]), tuple(int(tv[v]) for v in vs)) for f, vs in zip(fi, vi)]
 
     @property
     def viewmats(self) -> torch.Tensor:
@@ -312,8 +321,8 @@ class AvatarTrainer:
     # ------------------------------------------------------------------ step
     def train_step(self) -> dict[str, float]:
         """One optimiser step: the ``poses_per_step`` sampled frames are posed together (one
-        batched forward), each rendered from its sampled camera; the mean of their losses plus
-        the regularisation (on the first frame) is back-propagated once."""
+        batched forward), each rendered from its sampled cameras; the mean of the renders'
+        losses plus the regularisation (on the first frame) is back-propagated once."""
         t0 = time.perf_counter()
         self.step += 1
         sh = sh_degree_at(self.step, self.cfg.train.iterations, self.cfg.model.sh_degree,
@@ -322,15 +331,16 @@ class AvatarTrainer:
         pairs = self._sample()
         out, g = self.pose(torch.tensor([f for f, _ in pairs]), sh)
         metas, psnrs, losses, terms_sum = [], [], [], {}
-        n = len(pairs)
+        n = sum(len(views) for _, views in pairs)
         viewmats = self.viewmats
-        for b, (fi, vi) in enumerate(pairs):
-            terms, p, meta = self.image_terms(g, b, out.joints[b], fi, vi, viewmats)
-            losses.append(sum(terms.values()))
-            metas.append(meta)
-            psnrs.append(p)
-            for name, v in terms.items():
-                terms_sum[name] = terms_sum.get(name, 0.0) + float(v.detach()) / n
+        for b, (fi, views) in enumerate(pairs):
+            for vi in views:
+                terms, p, meta = self.image_terms(g, b, out.joints[b], fi, vi, viewmats)
+                losses.append(sum(terms.values()))
+                metas.append(meta)
+                psnrs.append(p)
+                for name, v in terms.items():
+                    terms_sum[name] = terms_sum.get(name, 0.0) + float(v.detach()) / n
         reg = {**self.regularizer(self.model, g),
                **displacement_terms(self.model, g, self.cfg.regularize)}
         for name, v in reg.items():

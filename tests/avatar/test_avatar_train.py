@@ -196,6 +196,27 @@ def test_switches_really_remove_their_computation(scene, monkeypatch):
     assert torch.equal(before, tr.smplx.body_pose)
 
 
+def test_views_per_pose_renders_each_pose_from_distinct_cameras(scene):
+    body, data = scene
+    seen = []
+
+    def recording(**kw):
+        seen.append(kw["viewmats"].detach().clone())
+        return rasterization(**kw)
+
+    tr = AvatarTrainer(body, data, _cfg(train={"accumulate_poses": 2, "views_per_pose": 2}),
+                       rasterize=recording)
+    pairs = tr._sample()
+    assert len(pairs) == 2 and all(len(v) == 2 and v[0] != v[1] for _, v in pairs)
+    seen.clear()  # renders of the colour initialisation
+    row = tr.train_step()
+    assert len(seen) == 4 and np.isfinite(row["loss"])
+    # more cameras asked for than there are: each pose gets every training camera once
+    tr = AvatarTrainer(body, data, _cfg(train={"views_per_pose": 99}))
+    (_, views), *_ = tr._sample()
+    assert sorted(views) == sorted(int(v) for v in tr.split.train_views)
+
+
 def test_evaluation_table_images_and_far_view_warning(scene, tmp_path, caplog):
     body, data = scene
     tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "test_views": [2]}))
