@@ -121,6 +121,7 @@ class TrainConfig:
     lr_sh_rest: float = 1.25e-3
     lr_network: float = 1.0e-3
     lr_shading: float = 1.0e-2  # the 27 irradiance coefficients (model.shading)
+    lr_final_fraction: float = 1.0  # every learning rate decays exponentially to this share
     color_init: str = "images"  # "images": median observed colour per point; "constant"
     color_init_images: int = 24  # training images sampled for it
     finetune_smplx: bool = True

@@ -188,6 +188,15 @@ def make_split(data: SceneData, cfg: AvatarConfig) -> Split:
     return Split(np.array([pos[int(f)] for f in tr]), np.array([pos[int(f)] for f in te]), tv, hv)
 
 
+def lr_factor(step: int, iterations: int, final_fraction: float) -> float:
+    """Learning-rate multiplier of optimiser step ``step`` (1-based): exponential decay from 1
+    at the first step to ``final_fraction`` at step ``iterations`` (constant past it)."""
+    if final_fraction >= 1.0 or iterations <= 1:
+        return 1.0
+    t = min(max(step - 1, 0) / (iterations - 1), 1.0)
+    return float(final_fraction ** t)
+
+
 class AvatarTrainer:
     """Trains one avatar on one scene. ``body`` is a ``signsplat.body.BodyModel``."""
 
@@ -246,6 +255,8 @@ class AvatarTrainer:
                            "name": "smplx"})
         if self.cameras.enabled:
             groups.append({"params": [self.cameras.raw], "lr": t.lr_cameras, "name": "cameras"})
+        for group in groups:
+            group["base_lr"] = group["lr"]
         return torch.optim.Adam(groups, eps=1e-15)
 
     @property
@@ -348,6 +359,9 @@ class AvatarTrainer:
         loss = torch.stack(losses).mean() + sum(reg.values())
         loss.backward()
         total = float(loss.detach())
+        factor = lr_factor(self.step, self.cfg.train.iterations, self.cfg.train.lr_final_fraction)
+        for group in self.optimizer.param_groups:
+            group["lr"] = group["base_lr"] * factor
         self.optimizer.step()
         stats = {"added": 0, "pruned": 0}
         if self.cfg.strategy.enabled:
@@ -400,6 +414,8 @@ class AvatarTrainer:
             self.cameras.load_state_dict(state["cameras"])
         self.optimizer = self._make_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
+        for group in self.optimizer.param_groups:  # checkpoints from before the lr schedule
+            group.setdefault("base_lr", group["lr"])
         self.strategy_state = state["strategy"]
         self.sampler.set_state(state["sampler"])
         torch.set_rng_state(state["torch_rng"])
