@@ -78,9 +78,10 @@ def test_training_improves_psnr_and_writes_a_log(scene, tmp_path):
     assert len(read_table(tmp_path / "train_log.parquet", "avatar_train_log")) == 30
 
 
-def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path):
+@pytest.mark.parametrize("final", [1.0, 0.1])
+def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path, final):
     body, data = scene
-    cfg = _cfg()
+    cfg = _cfg(train={"lr_final_fraction": final})
     a = AvatarTrainer(body, data, cfg)
     a.run(iterations=3, checkpoint=tmp_path / "half.pt", progress=False)
     a.run(iterations=6, progress=False)
@@ -97,6 +98,25 @@ def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path):
     for (ka, va), (kb, vb) in zip(a.smplx.state_dict().items(), b.smplx.state_dict().items()):
         torch.testing.assert_close(va, vb, rtol=0, atol=0)
     assert [r["loss"] for r in a.log_rows] == [r["loss"] for r in b.log_rows]
+
+
+def test_learning_rates_decay_to_the_final_fraction():
+    from signsplat.avatar.train import lr_factor
+
+    assert lr_factor(1, 100, 0.1) == 1.0 and lr_factor(100, 100, 0.1) == pytest.approx(0.1)
+    assert lr_factor(50, 100, 1.0) == 1.0 and lr_factor(500, 100, 0.1) == pytest.approx(0.1)
+    mid = lr_factor(51, 101, 0.01)  # halfway in exponent: sqrt(0.01)
+    assert mid == pytest.approx(0.1)
+
+
+def test_optimiser_groups_follow_the_schedule(scene):
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"lr_final_fraction": 0.1, "iterations": 6}))
+    base = {g["name"]: g["base_lr"] for g in tr.optimizer.param_groups}
+    for _ in range(6):
+        tr.train_step()
+    for g in tr.optimizer.param_groups:
+        assert g["lr"] == pytest.approx(0.1 * base[g["name"]])
 
 
 def _write_scene(root, data, smplx_override):
