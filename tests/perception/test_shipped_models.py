@@ -27,7 +27,9 @@ BODY, LEFT_HAND = list(KP_BODY), list(KP_LEFT_HAND)
 @pytest.fixture(scope="module")
 def held_out(tmp_path_factory, shipped):
     """Accuracy rows of both stages on freshly simulated evaluation scenes (config/scenes:
-    'single' 40 frames, 'studio6' 6 views x 8 frames), which training never sees."""
+    'single' 40 frames, 'studio6' its whole 60 frames x 6 views, as the workflow evaluates it:
+    its first frames are the hardest for the right hand, 0.79 over the first 8 against 0.87 over
+    all 60), which training never sees."""
     import pandas as pd
 
     from signsplat.body.proxy import write_proxy_model
@@ -43,7 +45,7 @@ def held_out(tmp_path_factory, shipped):
     write_proxy_model(body, seed=0)
     write_gloss_library(glosses, seed=0, fps=25.0)
     rows = []
-    for name, frames in (("single", 40), ("studio6", 8)):
+    for name, frames in (("single", 40), ("studio6", 60)):
         spec = load_scene(ROOT / "config" / "scenes" / f"{name}.yaml")
         spec.update(name=name, max_frames=frames)
         spec = validate(spec, "scene.schema.yaml", name)
