@@ -58,7 +58,8 @@ def load_keypoint_model(body_path: str | os.PathLike, num_betas: int, num_expres
 
 def clean_all(obs: np.ndarray, times: np.ndarray, heights: np.ndarray, cfg: dict
               ) -> tuple[np.ndarray, F.CleanStats]:
-    """Clean every view (NaN/low score, outliers, One-Euro). obs (V,T,133,3) -> same."""
+    """Clean every view (NaN/low score, outliers, One-Euro), then raise the confidences to
+    ``confidence_power``. obs (V,T,133,3) -> same."""
     fc = cfg["filter"]
     out = np.empty_like(obs)
     stats = F.CleanStats()
@@ -69,6 +70,9 @@ def clean_all(obs: np.ndarray, times: np.ndarray, heights: np.ndarray, cfg: dict
             one_euro_min_cutoff=fc["min_cutoff_hz"], one_euro_beta=fc["beta"],
             one_euro_d_cutoff=fc["d_cutoff_hz"], use_filter=fc["enabled"])
         stats = stats + st
+    power = float(cfg.get("confidence_power", 1.0))
+    if power != 1.0:  # ignored keypoints keep their 0
+        out[..., 2] = out[..., 2] ** power
     return out, stats
 
 

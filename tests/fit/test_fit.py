@@ -392,3 +392,23 @@ def test_lm_objective_equals_the_stage_loss(kpm):
         fc.set_global(fc.pack_global())
         got = float(fc.total(fc.pack()))
     assert got == pytest.approx(want, rel=2e-4)
+
+
+def test_confidence_power_reweights_kept_keypoints_only(kpm):
+    """fit.confidence_power raises the cleaned scores to the power; ignored keypoints stay 0."""
+    from signsplat.fit.cli import clean_all
+
+    T = 4
+    rig = synthetic_rig(2, arc=60)
+    obs = observe(kpm, random_motion(T, seed=3), rig)
+    rng = np.random.default_rng(0)
+    obs[..., 2] = rng.uniform(0.0, 1.0, obs.shape[:-1])
+    base, _ = clean_all(obs.copy(), np.arange(T) / 25.0, rig.height,
+                        _cfg({"confidence_power": 1}))
+    cubed, _ = clean_all(obs.copy(), np.arange(T) / 25.0, rig.height,
+                         _cfg({"confidence_power": 3}))
+    kept = base[..., 2] > 0
+    assert kept.any() and (~kept).any()
+    np.testing.assert_allclose(cubed[..., 2][kept], base[..., 2][kept] ** 3, rtol=1e-6)
+    assert (cubed[..., 2][~kept] == 0).all()
+    np.testing.assert_array_equal(cubed[..., :2], base[..., :2])
