@@ -70,7 +70,7 @@ def clean_all(obs: np.ndarray, times: np.ndarray, heights: np.ndarray, cfg: dict
             one_euro_min_cutoff=fc["min_cutoff_hz"], one_euro_beta=fc["beta"],
             one_euro_d_cutoff=fc["d_cutoff_hz"], use_filter=fc["enabled"])
         stats = stats + st
-    power = float(cfg.get("confidence_power", 1.0))
+    power = float(cfg["confidence_power"])
     if power != 1.0:  # ignored keypoints keep their 0
         out[..., 2] = out[..., 2] ** power
     return out, stats
