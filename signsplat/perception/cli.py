@@ -122,7 +122,25 @@ def train_detectors(argv: list[str]) -> int:
     p.add_argument("--sim-dirs", nargs="*", default=None,
                    help="use these simulated scene folders instead of simulating")
     p.add_argument("--which", choices=["both", "segmenter", "keypoints"], default="both")
+    p.add_argument("--resume-keypoints", default=None,
+                   help="keypoint state dict saved after a phase (keypoints.onnx.1.pt, .2.pt) "
+                        "to go on from; the result equals an uninterrupted run's")
+    p.add_argument("--resume-phase", type=int, choices=[1, 2], default=None,
+                   help="the phase --resume-keypoints was saved after (default: from its "
+                        "name, .1.pt or .2.pt)")
     a = p.parse_args(argv)
+    resume = {}
+    if a.resume_keypoints:
+        phase = a.resume_phase
+        if phase is None:
+            suffix = Path(a.resume_keypoints).name.rsplit(".", 2)[-2:]
+            if suffix[-1] != "pt" or suffix[0] not in ("1", "2"):
+                p.error(f"--resume-phase is needed: {a.resume_keypoints} is not named "
+                        "*.1.pt or *.2.pt")
+            phase = int(suffix[0])
+        if not Path(a.resume_keypoints).is_file():
+            p.error(f"--resume-keypoints: no file {a.resume_keypoints}")
+        resume = {"resume": a.resume_keypoints, "resume_phase": phase}
     cfg = perception_config(a.config_json)
     from signsplat.perception.train import TrainConfig, TrainJob, run_job
 
@@ -145,7 +163,7 @@ def train_detectors(argv: list[str]) -> int:
                              str(work / "logs" / "segmenter.log")))
     if a.which in ("both", "keypoints"):
         jobs.append(TrainJob("keypoints", train_dirs, tcfg, str(out_dir / "keypoints.onnx"),
-                             str(work / "logs" / "keypoints.log")))
+                             str(work / "logs" / "keypoints.log"), resume))
     workers = max(1, min(len(jobs), threads))
     if workers == 1:
         summaries = [run_job(job) for job in jobs]

@@ -63,6 +63,9 @@ class TrainConfig:
     hand_sigma: float = 1.25         # Gaussian sigma in hand heatmap cells (stride 4)
     kp_finetune_steps: int = 800     # phase 2 at lr / 3
     kp_finetune_pred_centers: float = 0.5  # phase 2: share of hand crops at the coarse centres
+    kp_hand_steps: int = 0           # phase 3: the hand network alone (coarse stage frozen)
+    kp_hand_lr: float = 1e-3         # phase 3 learning rate (warm-up + cosine)
+    kp_hand_right_weight: float = 1.0  # phase 3: right-hand loss weight (left hand 1)
     checkpoint_every: int = 200      # save a PyTorch checkpoint (out_path + '.pt') this often
     lr: float = 3e-3
     weight_decay: float = 1e-4
@@ -315,11 +318,14 @@ def _heatmap_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig, steps: int,
                     lr: float, rng: np.random.Generator, cap: float | None, pred_rate: float,
-                    tag: str, out_path, log=None) -> tuple[int, list[float]]:
+                    tag: str, out_path, log=None, hands_only: bool = False,
+                    right_weight: float = 1.0) -> tuple[int, list[float]]:
     """One phase of keypoint training (warm-up + cosine to 0 over ``steps``).
 
     ``pred_rate``: fraction of the hand crops centred where the coarse stage (as it is at that
     step) puts the hand, as at inference, instead of at the jittered ground truth.
+    ``hands_only``: the coarse stage only places the hand crops (no gradient, no loss); the
+    loss is the hand network's. ``right_weight``: weight of the right hands' loss (left 1).
     """
     hw = cfg.kp_input
     cs, hs, side = net.coarse_stride, net.hand.stride, net.hand_side
@@ -340,8 +346,9 @@ def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig,
         target = torch.from_numpy(np.stack(targets))
         for g in opt.param_groups:
             g["lr"] = _lr(progress, lr)
-        logits = net.coarse_logits(x)
-        lc = _heatmap_loss(logits, target)
+        with torch.set_grad_enabled(not hands_only):
+            logits = net.coarse_logits(x)
+        lc = _heatmap_loss(logits.detach() if hands_only else logits, target)
         centers = np.stack(centers)
         if pred_rate > 0:
             use = rng.random(centers.shape[:2]) < pred_rate
@@ -349,11 +356,17 @@ def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig,
             centers = np.where(use[..., None], pred, centers).astype(np.float32)
         htarget = torch.from_numpy(np.concatenate([
             hand_targets(p, v, c, side, cfg.hand_size, hs, cfg.hand_sigma)
-            for (p, v), c in zip(samples, centers)]))  # (2B, 21, h, w), left then right
+            for (p, v), c in zip(samples, centers)]))  # (2B, 21, h, w), left, right per sample
         with torch.no_grad():
             hx = net.hand_crops(x, torch.from_numpy(centers))
-        lh = _heatmap_loss(net.hand(hx), htarget)
-        loss = lc + lh
+        hand_logits = net.hand(hx)
+        if right_weight == 1.0:
+            lh = _heatmap_loss(hand_logits, htarget)
+        else:  # crops alternate left, right per sample; weighted mean of the two sides
+            lh = (_heatmap_loss(hand_logits[0::2], htarget[0::2])
+                  + right_weight * _heatmap_loss(hand_logits[1::2], htarget[1::2])) \
+                * (2.0 / (1.0 + right_weight))
+        loss = lh if hands_only else lc + lh
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -379,7 +392,8 @@ def keypoint_net(cfg: TrainConfig) -> CascadeSimCC:
 
 
 def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
-                    log=None, resume: str | os.PathLike | None = None) -> dict:
+                    log=None, resume: str | os.PathLike | None = None,
+                    resume_phase: int = 1) -> dict:
     """Train :class:`CascadeSimCC` and export it to ONNX.
 
     Each step draws ``kp_batch`` augmented person crops at ``kp_input``; the coarse stage
@@ -388,8 +402,12 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     sum is minimised). Phase 1 (``kp_steps``, lr): hand crops around jittered ground-truth
     hand centres. Phase 2 (``kp_finetune_steps``, lr / 3, fresh optimizer, own random stream):
     a fraction ``kp_finetune_pred_centers`` of the hand crops is centred where the coarse stage
-    puts the hand, as at inference. ``resume``: a phase-1 state dict (``out_path + '.1.pt'``)
-    to start phase 2 from; the result equals an uninterrupted run's.
+    puts the hand, as at inference. Phase 3 (``kp_hand_steps``, ``kp_hand_lr``, own optimizer
+    and random stream): the hand network alone, the coarse stage frozen, crops placed as in
+    phase 2, the right hand's loss weighted by ``kp_hand_right_weight`` (the signing hand has
+    the varied handshapes). ``resume``: the state dict saved after phase ``resume_phase``
+    (``out_path + '.1.pt'`` after phase 1, ``'.2.pt'`` after phase 2) to go on from; the
+    result equals an uninterrupted run's.
     """
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -399,29 +417,59 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     cap = cfg.kp_max_minutes or cfg.max_minutes
     t0 = time.perf_counter()
-    if resume is None:
-        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        steps1, losses1 = _keypoint_phase(net, opt, train, cfg, cfg.kp_steps, cfg.lr,
-                                          np.random.default_rng(cfg.seed + 2), cap, 0.0,
-                                          "crops", out_path, log)
-        torch.save(net.state_dict(), str(out_path) + ".1.pt")
-    else:
+    if resume is not None:
+        if resume_phase not in (1, 2):
+            raise ValueError(f"resume_phase must be 1 or 2, got {resume_phase}")
         net.load_state_dict(torch.load(str(resume)))
-        steps1, losses1 = cfg.kp_steps, [float("nan")] * 10
-    t1 = time.perf_counter()
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr / 3, weight_decay=cfg.weight_decay)
-    steps2, losses2 = _keypoint_phase(net, opt, train, cfg, cfg.kp_finetune_steps, cfg.lr / 3,
-                                      np.random.default_rng(cfg.seed + 12), cap,
-                                      cfg.kp_finetune_pred_centers, "cascade", out_path, log)
+    done = resume_phase if resume is not None else 0
+    steps = [cfg.kp_steps, cfg.kp_finetune_steps, cfg.kp_hand_steps]
+    losses = {1: [float("nan")] * 10, 2: [], 3: []}
+    phase_seconds = [0.0, 0.0, 0.0]
+    if done < 1:
+        t = time.perf_counter()
+        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        steps[0], losses[1] = _keypoint_phase(net, opt, train, cfg, cfg.kp_steps, cfg.lr,
+                                              np.random.default_rng(cfg.seed + 2), cap, 0.0,
+                                              "crops", out_path, log)
+        torch.save(net.state_dict(), str(out_path) + ".1.pt")
+        phase_seconds[0] = time.perf_counter() - t
+    if done < 2:
+        t = time.perf_counter()
+        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr / 3, weight_decay=cfg.weight_decay)
+        steps[1], losses[2] = _keypoint_phase(
+            net, opt, train, cfg, cfg.kp_finetune_steps, cfg.lr / 3,
+            np.random.default_rng(cfg.seed + 12), cap, cfg.kp_finetune_pred_centers, "cascade",
+            out_path, log)
+        torch.save(net.state_dict(), str(out_path) + ".2.pt")
+        phase_seconds[1] = time.perf_counter() - t
+    if cfg.kp_hand_steps > 0:
+        t = time.perf_counter()
+        for p in net.parameters():
+            p.requires_grad_(False)
+        for p in net.hand.parameters():
+            p.requires_grad_(True)
+        net.train()
+        net.coarse.eval()  # frozen: its batch-norm statistics stay as phase 2 left them
+        opt = torch.optim.AdamW(net.hand.parameters(), lr=cfg.kp_hand_lr,
+                                weight_decay=cfg.weight_decay)
+        steps[2], losses[3] = _keypoint_phase(
+            net, opt, train, cfg, cfg.kp_hand_steps, cfg.kp_hand_lr,
+            np.random.default_rng(cfg.seed + 22), cap, cfg.kp_finetune_pred_centers, "hands",
+            out_path, log, hands_only=True, right_weight=cfg.kp_hand_right_weight)
+        for p in net.parameters():
+            p.requires_grad_(True)
+        net.train()
+        phase_seconds[2] = time.perf_counter() - t
     seconds = time.perf_counter() - t0
     torch.save(net.state_dict(), str(out_path) + ".pt")
     export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"], atol=2e-3)
-    losses = losses1 + losses2
-    step = steps1 + steps2
-    return {"model": "keypoints", "parameters": count_parameters(net), "steps": step,
+    all_losses = losses[1] + losses[2] + losses[3]
+    return {"model": "keypoints", "parameters": count_parameters(net), "steps": sum(steps),
             "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),
-            "phase_steps": [steps1, steps2], "phase2_seconds": round(time.perf_counter() - t1, 1),
-            "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
+            "phase_steps": steps, "phase_seconds": [round(x, 1) for x in phase_seconds],
+            "resumed_after_phase": done,
+            "first_loss": float(np.mean(all_losses[:10])),
+            "final_loss": float(np.mean(all_losses[-50:])),
             "input_size": list(hw), "hand_size": cfg.hand_size, "hand_side": side,
             "split_ratio": net.split_ratio, "mean": list(RTM_MEAN), "std": list(RTM_STD),
             "frames": len(train)}
@@ -448,7 +496,7 @@ def run_job(job: TrainJob) -> dict:
         _log(f"{job.which}: {len(fs)} frames from {len(job.sim_dirs)} scenes loaded in "
              f"{time.perf_counter() - t0:.0f}s", log)
         fn = train_segmenter if job.which == "segmenter" else train_keypoints
-        summary = fn(fs, job.cfg, job.out_path, log)
+        summary = fn(fs, job.cfg, job.out_path, log, **job.extra)
         summary["scenes"] = [Path(d).parent.name for d in job.sim_dirs]
         summary["config"] = {k: (list(v) if isinstance(v, tuple) else v)
                              for k, v in asdict(job.cfg).items()}

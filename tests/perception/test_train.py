@@ -97,3 +97,24 @@ def test_segmenter_phase_two_resumes_exactly(tmp_path, scene_factory):
     phase1 = torch.load(tmp_path / "a.onnx.1.pt")
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert any(not torch.equal(a[k], phase1[k]) for k in a if a[k].is_floating_point())
+
+
+def test_keypoint_hand_phase_trains_only_the_hand_network_and_resumes_exactly(
+        tmp_path, scene_factory):
+    import torch
+
+    fs = D.load_scene(scene_factory(tmp_path, views=1, frames=3, size=64))
+    cfg = TrainConfig(kp_steps=2, kp_batch=2, kp_input=(64, 48), hand_size=32,
+                      kp_finetune_steps=4, kp_hand_steps=3, kp_hand_right_weight=3.0,
+                      checkpoint_every=0)
+    full = train_keypoints(fs, cfg, tmp_path / "a.onnx")
+    assert full["phase_steps"] == [2, 4, 3] and np.isfinite(full["final_loss"])
+    after2, final = torch.load(tmp_path / "a.onnx.2.pt"), torch.load(tmp_path / "a.onnx.pt")
+    changed = {k for k in final if final[k].is_floating_point()
+               and not torch.equal(final[k], after2[k])}
+    assert changed and all(k.startswith("hand.") for k in changed)
+    resumed = train_keypoints(fs, cfg, tmp_path / "b.onnx", resume=tmp_path / "a.onnx.2.pt",
+                              resume_phase=2)
+    assert resumed["phase_steps"] == [2, 4, 3] and resumed["resumed_after_phase"] == 2
+    b = torch.load(tmp_path / "b.onnx.pt")
+    assert all(torch.equal(final[k], b[k]) for k in final)
