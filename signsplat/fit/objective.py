@@ -29,7 +29,7 @@ class Weights:
     jaw: float = 10.0  # rad^-2 on jaw_pose
     hand_pose: float = 0.5  # rad^-2 on anatomical hand angles (pull towards the flat hand)
     smooth_keypoints: float = 100.0  # m^-2 on 3D keypoint accelerations
-    smooth_pose: float = 1.0  # rad^-2 on pose-parameter accelerations
+    smooth_pose: float = 100.0  # rad^-2 on pose-parameter accelerations
     behind_camera: float = 100.0  # m^-2 on depth below the near plane
     anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
     upright: float = 0.0  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
