@@ -348,7 +348,7 @@ def _keypoint_phase(net: CascadeSimCC, opt, train: D.FrameSet, cfg: TrainConfig,
             g["lr"] = _lr(progress, lr)
         with torch.set_grad_enabled(not hands_only):
             logits = net.coarse_logits(x)
-        lc = _heatmap_loss(logits.detach() if hands_only else logits, target)
+        lc = _heatmap_loss(logits, target)
         centers = np.stack(centers)
         if pred_rate > 0:
             use = rng.random(centers.shape[:2]) < pred_rate
@@ -423,12 +423,12 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
         net.load_state_dict(torch.load(str(resume)))
     done = resume_phase if resume is not None else 0
     steps = [cfg.kp_steps, cfg.kp_finetune_steps, cfg.kp_hand_steps]
-    losses = {1: [float("nan")] * 10, 2: [], 3: []}
+    losses = [[float("nan")] * 10, [], []]
     phase_seconds = [0.0, 0.0, 0.0]
     if done < 1:
         t = time.perf_counter()
         opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        steps[0], losses[1] = _keypoint_phase(net, opt, train, cfg, cfg.kp_steps, cfg.lr,
+        steps[0], losses[0] = _keypoint_phase(net, opt, train, cfg, cfg.kp_steps, cfg.lr,
                                               np.random.default_rng(cfg.seed + 2), cap, 0.0,
                                               "crops", out_path, log)
         torch.save(net.state_dict(), str(out_path) + ".1.pt")
@@ -436,7 +436,7 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
     if done < 2:
         t = time.perf_counter()
         opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr / 3, weight_decay=cfg.weight_decay)
-        steps[1], losses[2] = _keypoint_phase(
+        steps[1], losses[1] = _keypoint_phase(
             net, opt, train, cfg, cfg.kp_finetune_steps, cfg.lr / 3,
             np.random.default_rng(cfg.seed + 12), cap, cfg.kp_finetune_pred_centers, "cascade",
             out_path, log)
@@ -444,26 +444,20 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
         phase_seconds[1] = time.perf_counter() - t
     if cfg.kp_hand_steps > 0:
         t = time.perf_counter()
-        for p in net.parameters():
-            p.requires_grad_(False)
-        for p in net.hand.parameters():
-            p.requires_grad_(True)
-        net.train()
-        net.coarse.eval()  # frozen: its batch-norm statistics stay as phase 2 left them
+        # The coarse stage runs without gradient in this phase and only the hand network is
+        # optimised; eval mode keeps its batch-norm statistics as phase 2 left them.
+        net.coarse.eval()
         opt = torch.optim.AdamW(net.hand.parameters(), lr=cfg.kp_hand_lr,
                                 weight_decay=cfg.weight_decay)
-        steps[2], losses[3] = _keypoint_phase(
+        steps[2], losses[2] = _keypoint_phase(
             net, opt, train, cfg, cfg.kp_hand_steps, cfg.kp_hand_lr,
             np.random.default_rng(cfg.seed + 22), cap, cfg.kp_finetune_pred_centers, "hands",
             out_path, log, hands_only=True, right_weight=cfg.kp_hand_right_weight)
-        for p in net.parameters():
-            p.requires_grad_(True)
-        net.train()
         phase_seconds[2] = time.perf_counter() - t
     seconds = time.perf_counter() - t0
     torch.save(net.state_dict(), str(out_path) + ".pt")
     export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"], atol=2e-3)
-    all_losses = losses[1] + losses[2] + losses[3]
+    all_losses = losses[0] + losses[1] + losses[2]
     return {"model": "keypoints", "parameters": count_parameters(net), "steps": sum(steps),
             "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),
             "phase_steps": steps, "phase_seconds": [round(x, 1) for x in phase_seconds],
