@@ -251,8 +251,12 @@ class AvatarTrainer:
         if nets:
             groups.append({"params": nets, "lr": t.lr_network, "name": "networks"})
         if self.smplx.learnable:
-            groups.append({"params": list(self.smplx.parameters()), "lr": t.lr_smplx,
-                           "name": "smplx"})
+            shape = [p for n, p in self.smplx.named_parameters() if n == "betas"]
+            per_frame = [p for n, p in self.smplx.named_parameters() if n != "betas"]
+            groups.append({"params": per_frame, "lr": t.lr_smplx, "name": "smplx"})
+            if shape:
+                groups.append({"params": shape, "name": "betas",
+                               "lr": t.lr_smplx if t.lr_betas is None else t.lr_betas})
         if self.cameras.enabled:
             groups.append({"params": [self.cameras.raw], "lr": t.lr_cameras, "name": "cameras"})
         for group in groups:

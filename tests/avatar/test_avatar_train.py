@@ -119,6 +119,25 @@ def test_optimiser_groups_follow_the_schedule(scene):
         assert g["lr"] == pytest.approx(0.1 * base[g["name"]])
 
 
+def test_shape_coefficients_have_their_own_learning_rate(scene):
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_betas": 5e-2}))
+    lr = {g["name"]: g["lr"] for g in tr.optimizer.param_groups}
+    assert lr["betas"] == 5e-2 and lr["smplx"] == 1e-4
+    groups = {g["name"]: g["params"] for g in tr.optimizer.param_groups}
+    assert [p.shape for p in groups["betas"]] == [tr.smplx.betas.shape]
+    assert all(p is not tr.smplx.betas for p in groups["smplx"])
+    b0, pose0 = tr.smplx.betas.detach().clone(), tr.smplx.body_pose.detach().clone()
+    for _ in range(3):
+        tr.train_step()
+    moved_b = float((tr.smplx.betas - b0).abs().max())
+    moved_p = float((tr.smplx.body_pose - pose0).abs().max())
+    # Adam moves each coefficient by about its learning rate per step
+    assert 1e-2 < moved_b <= 1.05 * 3 * 5e-2 and 0 < moved_p <= 1.05 * 3 * 1e-4
+    same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4}))
+    assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["betas"] == 2e-4
+
+
 def _write_scene(root, data, smplx_override):
     rows, cams = [], []
     for vi, v in enumerate(data.views):
@@ -210,7 +229,8 @@ def test_switches_really_remove_their_computation(scene, monkeypatch):
                                         train={"finetune_smplx": False}))
     assert tr.model.omega is None
     assert not list(tr.smplx.parameters())
-    assert [g["name"] for g in tr.optimizer.param_groups if g["name"] in ("smplx",)] == []
+    assert [g["name"] for g in tr.optimizer.param_groups
+            if g["name"] in ("smplx", "betas")] == []
     before = tr.smplx.body_pose.clone()
     tr.train_step()
     assert torch.equal(before, tr.smplx.body_pose)
