@@ -126,7 +126,7 @@ class TrainConfig:
     color_init_images: int = 24  # training images sampled for it
     finetune_smplx: bool = True
     lr_smplx: float = 1.0e-4
-    lr_betas: float | None = None
+    lr_betas: float | None = 1.0e-2  # the shared shape coefficients; None = lr_smplx
     refine_cameras: bool | str = "auto"  # true, false or "auto" (on for fitted cameras)
     lr_cameras: float = 1.0e-3  # rad and m per step (Adam) of the camera corrections
     test_interval: int = 10  # every test_interval-th frame is held out (novel pose)

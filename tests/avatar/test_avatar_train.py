@@ -134,7 +134,7 @@ def test_shape_coefficients_have_their_own_learning_rate(scene):
     moved_p = float((tr.smplx.body_pose - pose0).abs().max())
     # Adam moves each coefficient by about its learning rate per step
     assert 1e-2 < moved_b <= 1.05 * 3 * 5e-2 and 0 < moved_p <= 1.05 * 3 * 1e-4
-    same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4}))
+    same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4, "lr_betas": None}))
     assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["betas"] == 2e-4
 
 
