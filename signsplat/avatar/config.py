@@ -145,7 +145,7 @@ class TrainConfig:
 
 @dataclass
 class EvalConfig:
-    refine_steps: int = 20  # test-time pose refinement iterations per held-out frame
+    refine_steps: int = 60  # test-time pose refinement iterations per held-out frame
     refine_lr: float = 2.0e-3
     crop_size: PartValues = field(default_factory=lambda: PartValues(0.0, 0.2, 0.15))
     far_view_degrees: float = 25.0

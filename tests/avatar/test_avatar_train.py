@@ -339,3 +339,26 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
     nov = df[df.split == "novel_pose"].sort_values(["protocol", "part", "metric"])
     a, b = nov[~nov.refine], nov[nov.refine]
     np.testing.assert_array_equal(a.value.to_numpy(), b.value.to_numpy())
+
+
+def test_training_ignores_the_settings_the_workflow_marks_evaluation_only(scene):
+    """workflow/rules/avatar.smk leaves EVAL_ONLY_KEYS out of the training rule's params, so
+    changing them re-runs only the evaluation; the trainer must then really not read them."""
+    import ast
+    from pathlib import Path
+
+    smk = (Path(__file__).resolve().parents[2] / "workflow" / "rules" / "avatar.smk").read_text()
+    line = next(x for x in smk.splitlines() if x.startswith("EVAL_ONLY_KEYS"))
+    keys = ast.literal_eval(line.split("=", 1)[1].strip())
+    assert "refine_steps" in keys and "crop_size" not in keys
+    odd = {"refine_steps": 0, "refine_lr": 0.5, "far_view_degrees": 1.0, "save_images": 0,
+           "max_frames": 1}
+    assert set(keys) <= set(odd)
+    body, data = scene
+    runs = []
+    for ev in ({}, {k: odd[k] for k in keys}):
+        tr = AvatarTrainer(body, data, _cfg(eval=ev))
+        for _ in range(3):
+            tr.train_step()
+        runs.append([r["loss"] for r in tr.log_rows])
+    assert runs[0] == runs[1]

@@ -114,6 +114,18 @@ def avatar_params(wildcards):
     return as_json(cfg)
 
 
+# evaluation settings the trainer never reads: changing them re-runs the evaluation only
+EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "far_view_degrees", "save_images", "max_frames")
+
+
+def avatar_train_params(wildcards):
+    """As avatar_params without the evaluation-only settings (eval.crop_size stays: the hand
+    loss of training uses it)."""
+    cfg = json.loads(avatar_params(wildcards))
+    cfg["eval"] = {k: v for k, v in cfg.get("eval", {}).items() if k not in EVAL_ONLY_KEYS}
+    return as_json(cfg)
+
+
 def avatar_eval_params(wildcards):
     """As avatar_params; sweep variants load the evaluation images at the native size."""
     cfg = json.loads(avatar_params(wildcards))
@@ -134,7 +146,7 @@ rule train_avatar:
         ply=f"{RESULTS}/{{scene}}/avatar/{{variant}}/avatar.ply",
         log=f"{RESULTS}/{{scene}}/avatar/{{variant}}/train_log.parquet",
     params:
-        cfg=avatar_params,
+        cfg=avatar_train_params,
         out=f"{RESULTS}/{{scene}}/avatar/{{variant}}",
     log:
         f"{RESULTS}/_logs/{{scene}}/train_avatar_{{variant}}.log",
