@@ -153,6 +153,11 @@ class EvalConfig:
     max_frames: int = 0  # 0 = every held-out frame
 
 
+# EvalConfig fields the trainer never reads (crop_size it does: the hand loss); the workflow
+# leaves them out of the training rule's params
+EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "far_view_degrees", "save_images", "max_frames")
+
+
 @dataclass
 class AvatarConfig:
     profile: str = "demo"

@@ -342,14 +342,10 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
 
 
 def test_training_ignores_the_settings_the_workflow_marks_evaluation_only(scene):
-    """workflow/rules/avatar.smk leaves EVAL_ONLY_KEYS out of the training rule's params, so
-    changing them re-runs only the evaluation; the trainer must then really not read them."""
-    import ast
-    from pathlib import Path
+    """The workflow leaves EVAL_ONLY_KEYS out of the training rule's params, so changing them
+    re-runs only the evaluation; the trainer must then really not read them."""
+    from signsplat.avatar.config import EVAL_ONLY_KEYS as keys
 
-    smk = (Path(__file__).resolve().parents[2] / "workflow" / "rules" / "avatar.smk").read_text()
-    line = next(x for x in smk.splitlines() if x.startswith("EVAL_ONLY_KEYS"))
-    keys = ast.literal_eval(line.split("=", 1)[1].strip())
     assert "refine_steps" in keys and "crop_size" not in keys
     odd = {"refine_steps": 0, "refine_lr": 0.5, "far_view_degrees": 1.0, "save_images": 0,
            "max_frames": 1}

@@ -6,9 +6,8 @@
 # budget changed). A variant whose resolved config equals an earlier one is that variant (the
 # full ablation with an empty base is `demo`, trained once). No science here.
 import copy
-import json
 
-from signsplat.avatar.config import resolve as resolve_avatar_config
+from signsplat.avatar.config import EVAL_ONLY_KEYS, resolve as resolve_avatar_config
 from signsplat.report.variants import ablation_plan, deep_merge, sweep_plan, sweep_values
 
 AVATAR_BASE = config.get("avatar", {})
@@ -108,27 +107,24 @@ def avatar_inputs(wildcards):
     return files
 
 
-def avatar_params(wildcards):
+def avatar_section(wildcards):
+    """The variant's avatar config with the SMPL-X source of its scene (a dict)."""
     cfg = avatar_variant_config(wildcards.variant)
     cfg["train"]["smplx_source"] = avatar_smplx_source(wildcards)
-    return as_json(cfg)
-
-
-# evaluation settings the trainer never reads: changing them re-runs the evaluation only
-EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "far_view_degrees", "save_images", "max_frames")
+    return cfg
 
 
 def avatar_train_params(wildcards):
-    """As avatar_params without the evaluation-only settings (eval.crop_size stays: the hand
-    loss of training uses it)."""
-    cfg = json.loads(avatar_params(wildcards))
-    cfg["eval"] = {k: v for k, v in cfg.get("eval", {}).items() if k not in EVAL_ONLY_KEYS}
+    """The training config, without the settings only the evaluation reads (so that changing
+    them re-runs the evaluation, not the training)."""
+    cfg = avatar_section(wildcards)
+    cfg["eval"] = {k: v for k, v in cfg["eval"].items() if k not in EVAL_ONLY_KEYS}
     return as_json(cfg)
 
 
 def avatar_eval_params(wildcards):
-    """As avatar_params; sweep variants load the evaluation images at the native size."""
-    cfg = json.loads(avatar_params(wildcards))
+    """The whole config; sweep variants load the evaluation images at the native size."""
+    cfg = avatar_section(wildcards)
     if wildcards.variant in NATIVE_EVAL_VARIANTS:
         cfg["train"]["resolution"] = 0
     return as_json(cfg)
