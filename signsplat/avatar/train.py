@@ -343,6 +343,9 @@ class AvatarTrainer:
         sh = sh_degree_at(self.step, self.cfg.train.iterations, self.cfg.model.sh_degree,
                           self.cfg.sh_schedule.rise_at)
         self.optimizer.zero_grad(set_to_none=True)
+        if self.cameras.enabled:  # decided from the step, so a resumed run does the same
+            stop = self.cfg.train.refine_cameras_stop
+            self.cameras.raw.requires_grad_(stop == 0 or self.step <= stop)
         pairs = self._sample()
         out, g = self.pose(torch.tensor([f for f, _ in pairs]), sh)
         metas, psnrs, losses, terms_sum = [], [], [], {}

@@ -99,3 +99,23 @@ def test_training_pulls_perturbed_cameras_back(scene):  # noqa: F811
     assert not cameras_refined(gt)
     assert cameras_refined(_cfg(train={"smplx_source": "fitted"}))
     assert np.isfinite([r["loss"] for r in tr.log_rows]).all()
+
+
+def test_camera_corrections_stay_fixed_after_the_stop_step(scene):  # noqa: F811
+    body, data = scene
+    cfg = _cfg(train={"iterations": 6, "color_init": "constant", "refine_cameras": True,
+                      "lr_cameras": 3e-3, "refine_cameras_stop": 3})
+    tr = AvatarTrainer(body, data, cfg)
+    seen = []
+    for _ in range(6):
+        tr.train_step()
+        seen.append(tr.cameras.raw.detach().clone())
+    # refined up to the stop step (each step moves them), frozen after it
+    assert not torch.equal(seen[1], seen[2])
+    for later in seen[3:]:
+        assert torch.equal(later, seen[2])
+    assert tr.cameras.raw.grad is None
+    # the rest of the model still trains past the stop
+    colours = tr.model.sh_dc.detach().clone()
+    tr.train_step()
+    assert not torch.equal(colours, tr.model.sh_dc.detach())
