@@ -1,7 +1,7 @@
 """``signsplat train-avatar`` and ``signsplat evaluate``: thin wrappers over the library.
 
 train-avatar writes ``checkpoint.pt`` (resumable, atomic), ``avatar.ply`` (3DGS PLY) and
-``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet`` and ``images/``
+``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet``, ``views.parquet`` (per camera) and ``images/``
 (ground truth | render | error map) into ``--out``.
 """
 
@@ -104,9 +104,10 @@ def evaluate(argv: list[str]) -> int:
     cfg, device, body, data = _setup(args)
     out = Path(args.out)
     eval_over = json.loads(args.config_json).get("eval")
-    df = evaluate_checkpoint(args.checkpoint, body, data, args.variant, out / "images",
-                             device=str(device), overrides=eval_over)
+    df, views = evaluate_checkpoint(args.checkpoint, body, data, args.variant, out / "images",
+                                    device=str(device), overrides=eval_over)
     write_table(df, out / "metrics.parquet", "avatar_metrics")
+    write_table(views, out / "views.parquet", "avatar_view_metrics")
     sel = df[(df.protocol == "bg_replaced") & (df.metric == "psnr") & (~df.refine)]
     for _, r in sel.iterrows():
         log.info("%-16s %-10s PSNR %.2f dB (n=%d)", r.split, r.part, r.value, r.n_images)

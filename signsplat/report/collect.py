@@ -40,6 +40,7 @@ class SceneTables:
     fit_overlays: list[Path] = field(default_factory=list)
     colmap: pd.DataFrame | None = None
     avatar_metrics: dict[str, pd.DataFrame] = field(default_factory=dict)
+    avatar_views: dict[str, pd.DataFrame] = field(default_factory=dict)  # per camera
     avatar_images: dict[str, list[Path]] = field(default_factory=dict)
     train_logs: dict[str, pd.DataFrame] = field(default_factory=dict)
     keypoints_2d: Path | None = None  # ground-truth or detected keypoints (close-up crops)
@@ -107,6 +108,9 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
     for metrics in sorted((scene_dir / "eval").glob("*/metrics.parquet")):
         variant = metrics.parent.name
         t.avatar_metrics[variant] = read_parquet(metrics)
+        views = read_parquet(metrics.parent / "views.parquet")
+        if views is not None:
+            t.avatar_views[variant] = views
         t.avatar_images[variant] = _pngs(metrics.parent / "images", max_images)
     for log in sorted((scene_dir / "avatar").glob("*/train_log.parquet")):
         t.train_logs[log.parent.name] = read_parquet(log)

@@ -19,6 +19,7 @@ import jinja2
 import numpy as np
 import pandas as pd
 
+from signsplat.avatar.config import WEAK_VIEW_DB
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
@@ -186,6 +187,25 @@ def _avatar_summary(m: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _views_summary(v: pd.DataFrame) -> pd.DataFrame:
+    """PSNR (dB) per split and refinement (rows) and camera (columns)."""
+    out = v.pivot_table(index=["split", "refine"], columns="view", values="psnr",
+                        aggfunc="mean")
+    out.columns = [f"view {c}" for c in out.columns]
+    return out.reset_index()
+
+
+def _weak_views_note(v: pd.DataFrame) -> str:
+    unrefined = v[~v["refine"].astype(bool)]
+    cams = unrefined.groupby("split")["view"].transform("size")
+    weak = unrefined[(cams >= 3) & (unrefined["below_median_db"] > WEAK_VIEW_DB)]
+    if not len(weak):
+        return f"(no camera more than {WEAK_VIEW_DB:g} dB below the median of the others)"
+    names = ", ".join(f"view {int(r.view)} on {r.split} ({r.below_median_db:.1f} dB below)"
+                      for r in weak.itertuples())
+    return f"- far below the other cameras: {names}; check that camera"
+
+
 CLOSEUP_PARTS = {"left_hand": (J.KP_LEFT_HAND, 0.18), "right_hand": (J.KP_RIGHT_HAND, 0.18),
                  "face": (J.KP_FACE, 0.25)}
 _PANEL = re.compile(r"f(\d+)_v(\d+)")
@@ -258,6 +278,10 @@ def avatar_section(res: Results, assets: Assets) -> Section:
                 train_s = float(m["train_seconds"].iloc[0])
             sec.add_table(f"{name} / {variant}: training {_fmt_seconds(train_s)}, "
                           f"evaluation {_fmt_seconds(eval_s)}", _avatar_summary(m))
+            views = t.avatar_views.get(variant)
+            if views is not None and views["view"].nunique() > 1:
+                sec.add_table(f"{name} / {variant}: whole-image PSNR per camera "
+                              f"{_weak_views_note(views)}", _views_summary(views))
             for img in t.avatar_images.get(variant, []):
                 sec.figures.append(Figure(assets.copy(img), f"{name} / {variant}: {img.stem} "
                                           "(ground truth | render | error)", train_s,

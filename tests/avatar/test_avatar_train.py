@@ -262,10 +262,21 @@ def test_evaluation_table_images_and_far_view_warning(scene, tmp_path, caplog):
     tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "test_views": [2]}))
     tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
     with caplog.at_level(logging.WARNING, logger="signsplat.avatar.evaluate"):
-        df = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "tiny-test", tmp_path / "img",
-                                 overrides={"save_images": 2})
+        df, views = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "tiny-test",
+                                        tmp_path / "img", overrides={"save_images": 2})
     assert any("degrees from the nearest training camera" in r.message for r in caplog.records)
     write_table(df, tmp_path / "metrics.parquet", "avatar_metrics")
+    write_table(views, tmp_path / "views.parquet", "avatar_view_metrics")
+    # per camera: the held-out camera 2 only in the novel-view splits; the per-view means,
+    # weighted by their image counts, give the whole-split figure of the metrics table
+    assert set(views[views.split == "novel_view"].view) == {int(data.views[2])}
+    assert int(data.views[2]) not in set(views[views.split == "novel_pose"].view)
+    full = df[(df.protocol == "bg_replaced") & (df.part == "full") & (df.metric == "psnr")]
+    for (split, refine), g in views.groupby(["split", "refine"]):
+        want = full[(full.split == split) & (full.refine == refine)].value.item()
+        got = float((g.psnr * g.n_images).sum() / g.n_images.sum())
+        assert abs(got - want) < 1e-9, (split, refine)
+        assert g.n_images.sum() == full[(full.split == split) & (full.refine == refine)].n_images.item()
     assert set(df.split) == {"novel_pose", "novel_view", "novel_pose_view", "train"}
     assert set(df.protocol) == {"bg_replaced", "mask_only", "raw_gt"}
     assert {"full", "left_hand", "right_hand", "face"} <= set(df.part)
@@ -334,8 +345,8 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
     body, data = scene
     tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "smplx_source": "ground_truth"}))
     tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
-    df = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", None,
-                             overrides={"refine_steps": 4, "refine_lr": 1.0})
+    df, _ = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", None,
+                                overrides={"refine_steps": 4, "refine_lr": 1.0})
     nov = df[df.split == "novel_pose"].sort_values(["protocol", "part", "metric"])
     a, b = nov[~nov.refine], nov[nov.refine]
     np.testing.assert_array_equal(a.value.to_numpy(), b.value.to_numpy())
@@ -358,3 +369,24 @@ def test_training_ignores_the_settings_the_workflow_marks_evaluation_only(scene)
             tr.train_step()
         runs.append([r["loss"] for r in tr.log_rows])
     assert runs[0] == runs[1]
+
+
+def test_a_camera_far_below_the_others_is_named_in_a_warning(caplog):
+    from signsplat.avatar.evaluate import warn_weak_views
+
+    def table(psnrs, split="novel_pose"):
+        v = pd.DataFrame({"split": split, "refine": False, "view": range(len(psnrs)),
+                          "psnr": psnrs})
+        v["below_median_db"] = v.psnr.median() - v.psnr
+        return v
+
+    with caplog.at_level(logging.WARNING, logger="signsplat.avatar.evaluate"):
+        weak = warn_weak_views(table([26.2, 25.5, 18.0, 24.3, 24.2, 25.8]))
+    assert list(weak.view) == [2]
+    assert any("camera 2 scores 18.00 dB on novel_pose" in r.message for r in caplog.records)
+    caplog.clear()
+    # within the threshold, or too few cameras to have a median worth comparing: no warning
+    assert warn_weak_views(table([26.2, 25.5, 23.5, 24.3])).empty
+    assert warn_weak_views(table([26.0, 18.0])).empty
+    assert warn_weak_views(table([])).empty
+    assert not caplog.records

@@ -173,3 +173,12 @@ def test_report_tables_are_also_written_as_tsv(results_dir, tmp_path):
     df = pd.read_csv(tables / abl[0], sep="\t")
     assert df.variant.tolist() == ["full", "w/o regularisation"]
     assert df.psnr.iloc[0] == pytest.approx(22.0)
+
+
+def test_report_shows_psnr_per_camera_and_names_a_camera_far_below_the_others(results_dir,
+                                                                             tmp_path):
+    page = write_report(results_dir, tmp_path / "rep" / "index.html").read_text()
+    assert "whole-image PSNR per camera" in page
+    assert "view 2 on novel_pose (6.2 dB below)" in page
+    for c in range(4):
+        assert f"view {c}</th>" in page

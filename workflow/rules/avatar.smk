@@ -165,6 +165,7 @@ rule evaluate_avatar:
         checkpoint=rules.train_avatar.output.checkpoint,
     output:
         metrics=f"{RESULTS}/{{scene}}/eval/{{variant}}/metrics.parquet",
+        views=f"{RESULTS}/{{scene}}/eval/{{variant}}/views.parquet",
         images=report(directory(f"{RESULTS}/{{scene}}/eval/{{variant}}/images"),
                       patterns=["{name}.png"], caption="../report/avatar_images.rst",
                       category="5. Avatar", subcategory="{variant}"),
@@ -187,6 +188,7 @@ rule evaluate_avatar:
 
 
 FINAL_OUTPUTS.extend(
-    expand(rules.evaluate_avatar.output.metrics, scene=list(SEQUENCES),
+    expand([rules.evaluate_avatar.output.metrics, rules.evaluate_avatar.output.views],
+           scene=list(SEQUENCES),
            variant=AVATAR_DEFAULT_VARIANTS)
 )
