@@ -129,7 +129,7 @@ class TrainConfig:
     lr_betas: float | None = 1.0e-2  # the shared shape coefficients; None = lr_smplx
     refine_cameras: bool | str = "auto"  # true, false or "auto" (on for fitted cameras)
     lr_cameras: float = 1.0e-3  # rad and m per step (Adam) of the camera corrections
-    refine_cameras_stop: int = 0  # step after which the corrections stay fixed; 0 = never
+    refine_cameras_stop: int = 300  # step after which the corrections stay fixed; 0 = never
     test_interval: int = 10  # every test_interval-th frame is held out (novel pose)
     test_offset: int = 5
     test_views: list[int] = field(default_factory=list)  # held-out cameras (novel view)
