@@ -14,7 +14,8 @@ Modules (each small, functional where it can be):
 - ``data``: scene tables -> :class:`SceneData`; novel-pose split.
 - ``train``: :class:`AvatarTrainer` (accumulation, SMPL-X fine-tuning, checkpoints),
   :func:`load_avatar`.
-- ``evaluate``: :func:`evaluate_checkpoint` -> ``avatar_metrics`` rows.
+- ``evaluate``: :func:`evaluate_checkpoint` -> ``avatar_metrics`` and per-camera
+  ``avatar_view_metrics`` rows (``views``).
 - ``ply``: standard 3DGS PLY writer/reader. ``cli``: ``train-avatar`` and ``evaluate``.
 
 Typical use::

@@ -1,8 +1,8 @@
 """``signsplat train-avatar`` and ``signsplat evaluate``: thin wrappers over the library.
 
 train-avatar writes ``checkpoint.pt`` (resumable, atomic), ``avatar.ply`` (3DGS PLY) and
-``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet``, ``views.parquet`` (per camera) and ``images/``
-(ground truth | render | error map) into ``--out``.
+``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet``, ``views.parquet``
+(per camera) and ``images/`` (ground truth | render | error map) into ``--out``.
 """
 
 from __future__ import annotations

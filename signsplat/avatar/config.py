@@ -158,10 +158,6 @@ class EvalConfig:
 # leaves them out of the training rule's params
 EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "far_view_degrees", "save_images", "max_frames")
 
-# a camera whose whole-image PSNR is this many dB below the median of the split's cameras is
-# named in a warning by the evaluation and in the report
-WEAK_VIEW_DB = 3.0
-
 
 @dataclass
 class AvatarConfig:

@@ -33,13 +33,14 @@ import numpy as np
 import pandas as pd
 import torch
 
-from signsplat.avatar.config import WEAK_VIEW_DB, AvatarConfig
+from signsplat.avatar.config import AvatarConfig
 from signsplat.avatar.data import SceneData, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr, ssim
 from signsplat.avatar.model import AvatarModel
 from signsplat.avatar.regions import PART_JOINTS, part_box
 from signsplat.avatar.train import (RasterizeFn, SmplxParams, default_rasterizer, eval_eps2d,
                                     render_gaussians)
+from signsplat.avatar.views import per_view, weak_views
 from signsplat.io.images import write_png
 from signsplat.io.tables import Table, register_table
 
@@ -61,24 +62,6 @@ METRICS = register_table(Table(
     extra_columns=True,
     # extra: protocol (str), refine (bool), n_images (int64), background (str 'r,g,b'),
     # split_rule (str), eval_seconds (float64), smplx_source (str)
-))
-
-VIEW_METRICS = register_table(Table(
-    "avatar_view_metrics",
-    "Avatar whole-image scores per camera (protocol bg_replaced, part full), one row per "
-    "(split, refine, view): a camera that scores far below the others shows here, not in the "
-    "averages of avatar_metrics.",
-    {
-        "scene": "str sequence name",
-        "variant": "str avatar variant (config name)",
-        "split": "str novel_pose | novel_view | novel_pose_view | train",
-        "refine": "bool test-time pose refinement on",
-        "view": "int64 camera (the view column of the scene's tables)",
-        "psnr": "float64 dB, mean over the view's images in the split",
-        "ssim": "float64 mean over the view's images in the split",
-        "n_images": "int64 images averaged",
-        "below_median_db": "float64 median PSNR of the split's views minus this view's",
-    },
 ))
 
 PROTOCOLS = ("bg_replaced", "mask_only", "raw_gt")
@@ -303,33 +286,9 @@ def summarize(per_image: pd.DataFrame, scene: str, variant: str, train_seconds: 
     })
 
 
-def per_view(per_image: pd.DataFrame, scene: str, variant: str) -> pd.DataFrame:
-    """The ``avatar_view_metrics`` rows of :meth:`Evaluator.run`'s per-image scores."""
-    cols = ["scene", "variant", "split", "refine", "view", "psnr", "ssim", "n_images",
-            "below_median_db"]
-    if per_image.empty:
-        return pd.DataFrame({c: [] for c in cols})
-    d = per_image[(per_image["protocol"] == "bg_replaced") & (per_image["part"] == "full")]
-    wide = d.pivot_table(index=["split", "refine", "view", "frame"], columns="metric",
-                         values="value").reset_index()
-    out = wide.groupby(["split", "refine", "view"], sort=True).agg(
-        psnr=("psnr", "mean"), ssim=("ssim", "mean"), n_images=("psnr", "size")).reset_index()
-    median = out.groupby(["split", "refine"])["psnr"].transform("median")
-    out["below_median_db"] = median - out["psnr"]
-    out["n_images"] = out["n_images"].astype("int64")
-    out["view"] = out["view"].astype("int64")
-    out["refine"] = out["refine"].astype(bool)
-    out.insert(0, "variant", variant)
-    out.insert(0, "scene", scene)
-    return out[cols]
-
-
-def warn_weak_views(views: pd.DataFrame, threshold_db: float = WEAK_VIEW_DB) -> pd.DataFrame:
-    """Log a warning for each camera more than ``threshold_db`` below the median of its split's
-    cameras (splits with at least three cameras); returns those rows."""
-    counts = views.groupby(["split", "refine"])["view"].transform("size") if len(views) else []
-    weak = views[(counts >= 3) & (views["below_median_db"] > threshold_db)] if len(views) \
-        else views
+def warn_weak_views(views: pd.DataFrame) -> pd.DataFrame:
+    """Log a warning for each camera far below the others (:func:`weak_views`); returns them."""
+    weak = weak_views(views)
     for r in weak.itertuples():
         log.warning("camera %d scores %.2f dB on %s%s, %.1f dB below the median of the cameras: "
                     "its camera (or its learned correction, train.refine_cameras) may be off",
@@ -340,7 +299,7 @@ def warn_weak_views(views: pd.DataFrame, threshold_db: float = WEAK_VIEW_DB) -> 
 def evaluate_checkpoint(checkpoint: str | os.PathLike, body, data: SceneData, variant: str,
                         image_dir: str | os.PathLike | None = None,
                         rasterize: RasterizeFn | None = None, device: str = "cpu",
-                        overrides: dict | None = None) -> pd.DataFrame:
+                        overrides: dict | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Load a checkpoint, evaluate it on ``data``; returns the ``avatar_metrics`` rows and the
     ``avatar_view_metrics`` rows (a camera far below the others is logged as a warning).
 

@@ -19,7 +19,7 @@ import jinja2
 import numpy as np
 import pandas as pd
 
-from signsplat.avatar.config import WEAK_VIEW_DB
+from signsplat.avatar.views import WEAK_VIEW_DB, weak_views
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
@@ -196,9 +196,7 @@ def _views_summary(v: pd.DataFrame) -> pd.DataFrame:
 
 
 def _weak_views_note(v: pd.DataFrame) -> str:
-    unrefined = v[~v["refine"].astype(bool)]
-    cams = unrefined.groupby("split")["view"].transform("size")
-    weak = unrefined[(cams >= 3) & (unrefined["below_median_db"] > WEAK_VIEW_DB)]
+    weak = weak_views(v[~v["refine"].astype(bool)])
     if not len(weak):
         return f"(no camera more than {WEAK_VIEW_DB:g} dB below the median of the others)"
     names = ", ".join(f"view {int(r.view)} on {r.split} ({r.below_median_db:.1f} dB below)"
