@@ -273,10 +273,10 @@ def test_evaluation_table_images_and_far_view_warning(scene, tmp_path, caplog):
     assert int(data.views[2]) not in set(views[views.split == "novel_pose"].view)
     full = df[(df.protocol == "bg_replaced") & (df.part == "full") & (df.metric == "psnr")]
     for (split, refine), g in views.groupby(["split", "refine"]):
-        want = full[(full.split == split) & (full.refine == refine)].value.item()
+        want = full[(full.split == split) & (full.refine == refine)]
         got = float((g.psnr * g.n_images).sum() / g.n_images.sum())
-        assert abs(got - want) < 1e-9, (split, refine)
-        assert g.n_images.sum() == full[(full.split == split) & (full.refine == refine)].n_images.item()
+        assert abs(got - want.value.item()) < 1e-9, (split, refine)
+        assert g.n_images.sum() == want.n_images.item()
     assert set(df.split) == {"novel_pose", "novel_view", "novel_pose_view", "train"}
     assert set(df.protocol) == {"bg_replaced", "mask_only", "raw_gt"}
     assert {"full", "left_hand", "right_hand", "face"} <= set(df.part)
