@@ -10,6 +10,9 @@ import pandas as pd
 import pytest
 import yaml
 
+from signsplat.avatar.config import resolve
+from signsplat.report.variants import ablation_plan, sweep_plan
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -140,9 +143,12 @@ def test_dry_run_of_the_sweep_target_plans_the_default_settings(tmp_path):
     res = snakemake("-n", "sweep", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     ablations, sweep = _default_studies()
-    # the centre is an already declared variant when its config equals one
-    centre = ("demo" if sweep["base"] == {} else
-              "abl_full" if sweep["base"] == ablations["base"] else "sw_base")
+    # the centre is an already declared variant when its config equals one: with equal study
+    # bases, the ablation row whose switches are the demo profile's
+    centre_cfg = resolve(sweep_plan(sweep["base"], {})[0].overrides)
+    same = [p.name for p in ablation_plan(ablations["base"], "ground_truth")
+            if resolve(p.overrides) == centre_cfg]
+    centre = "demo" if sweep["base"] == {} else (same[0] if same else "sw_base")
     expected = {"demo", centre} | {f"sw_{axis}{v}"
                                    for axis in ("iterations", "resolution", "max_points")
                                    for v in sweep[axis]}
@@ -156,9 +162,10 @@ def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path)
     cfg = tiny_study_config(tmp_path)
     res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))
     assert res.returncode == 0, res.stderr + res.stdout
-    # avatar.train.smplx_source defaults to fitted: the source row trains on ground truth
+    # avatar.train.smplx_source defaults to fitted: the source row trains on ground truth;
+    # the demo profile leaves regularisation off, so the "w/o regularisation" row is the demo
     assert planned_variants(res.stdout, "train_avatar") == {
-        "demo", "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx",
+        "demo", "abl_full", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx",
         "sw_iterations2"}
     bad = tiny_study_config(tmp_path, ablations={"scene": "nowhere", "base": {}})
     res = snakemake("-n", "ablations", "--configfile", str(bad))

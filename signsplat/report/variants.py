@@ -1,9 +1,10 @@
 """The avatar variants behind the ``ablations`` and ``sweep`` workflow targets (plain data).
 
 A variant is the ``avatar`` config section with overrides applied (see workflow/rules/avatar.smk).
-Ablation variants are the demo profile plus the config's ``ablations.base`` with exactly one
-switch of the avatar schema flipped (paper Table 5, plus the static mesh-anchored baseline and
-the SMPL-X source). Sweep variants change one of training iterations, image resolution or point
+Ablation variants start from the paper's full model: the demo profile plus the config's
+``ablations.base`` with every switch on (:data:`FULL_MODEL`; the demo profile itself leaves
+regularisation off). Each row then flips exactly one switch of the avatar schema (paper Table 5,
+plus the static mesh-anchored baseline and the SMPL-X source). Sweep variants change one of training iterations, image resolution or point
 budget of the ``sweep.base`` setting at a time (a one-factor-at-a-time sweep around the centre).
 """
 
@@ -22,6 +23,9 @@ _SWITCHES: list[tuple[str, str, dict]] = [
     ("abl_static", "w/o pose-dependent networks (static mesh-anchored)",
      {"model": {"pose_dependent": False}}),
 ]
+# The paper's full model: every switch on, whatever the demo profile or ablations.base say.
+FULL_MODEL = {"regularize": {"enabled": True}, "strategy": {"enabled": True},
+              "train": {"accumulate": True}, "model": {"pose_dependent": True}}
 # The avatar-schema fields read back as the switch columns of ablations.parquet.
 SWITCH_FIELDS = {"regularize": ("regularize", "enabled"), "densify": ("strategy", "enabled"),
                  "accumulate": ("train", "accumulate"), "pose_dependent": ("model", "pose_dependent")}
@@ -59,8 +63,9 @@ def ablation_plan(base: dict, base_source: str, with_source: bool = True) -> lis
     """The ablation rows. ``base``: avatar overrides shared by every row (over the demo profile);
     ``base_source``: the SMPL-X source the resolved base trains on (``fitted`` or
     ``ground_truth``); ``with_source``: add the row that trains on the other source (only when
-    the sequence has ground truth)."""
-    start = deep_merge({"profile": "demo"}, base)
+    the sequence has ground truth). Every row starts from :data:`FULL_MODEL`, so a switch in
+    ``base`` is overridden."""
+    start = deep_merge(deep_merge({"profile": "demo"}, base), FULL_MODEL)
     rows = [Planned(label, name, deep_merge(start, over)) for name, label, over in _SWITCHES]
     if with_source:
         other = "ground_truth" if base_source == "fitted" else "fitted"

@@ -23,6 +23,7 @@ BASE = {
     "model": {"scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}, "hidden": 8},
     "train": {"iterations": 6, "test_interval": 3, "test_offset": 2, "log_every": 1,
               "accumulate_poses": 2, "checkpoint_every": 3, "render_backend": "cpu"},
+    "regularize": {"enabled": True},  # off in the demo profile; the tests exercise it
     "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 100,
                  "grad_threshold": 1e-6, "max_new_per_refine": 20},
     "eval": {"crop_size": {"body": 0.0, "head": 0.4, "hands": 0.4}, "refine_steps": 2},
@@ -209,6 +210,8 @@ def test_switches_really_remove_their_computation(scene, monkeypatch):
     def boom(*a, **k):
         raise AssertionError("computed although switched off")
 
+    row = AvatarTrainer(body, data, _cfg()).train_step()
+    assert any(k.startswith("reg_") for k in row)  # on: the terms are there
     monkeypatch.setattr(reg_mod, "build_neighbourhoods", boom)
     tr = AvatarTrainer(body, data, _cfg(regularize={"enabled": False}))
     row = tr.train_step()

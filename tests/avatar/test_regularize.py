@@ -55,7 +55,7 @@ def test_switch_off_gives_no_terms_and_builds_nothing(tiny_body):
     reg = Regularizer(cfg.regularize)
     assert reg(model, g) == {} and reg._nb is None
     assert displacement_terms(model, g, cfg.regularize) == {}
-    model_on, cfg_on = _model(tiny_body)
+    model_on, cfg_on = _model(tiny_body, enabled=True)
     with torch.no_grad():
         model_on.sh_dc.normal_()
         model_on.disp_net.head.bias.fill_(1.0)

@@ -48,6 +48,16 @@ def test_every_ablation_flips_exactly_one_switch_of_the_base():
     assert set(SWITCH_FIELDS) == {"regularize", "densify", "accumulate", "pose_dependent"}
 
 
+def test_the_full_row_is_the_papers_model_whatever_the_demo_or_base_switch_off():
+    assert resolve({"profile": "demo"})["regularize"]["enabled"] is False  # the demo's choice
+    plan = ablation_plan({"strategy": {"enabled": False}}, "fitted")
+    assert switch_values(resolve(plan[0].overrides)) == {
+        "regularize": True, "densify": True, "accumulate": True, "pose_dependent": True,
+        "smplx_source": "fitted"}
+    no_dens = next(p for p in plan if p.name == "abl_no_dens")
+    assert switch_values(resolve(no_dens.overrides))["densify"] is False
+
+
 def test_ablation_source_row_is_the_other_source_or_absent():
     plan = ablation_plan({"train": {"smplx_source": "ground_truth"}}, "ground_truth")
     assert plan[-1].name == "abl_fitted_smplx" and plan[-1].label == "fitted SMPL-X"
