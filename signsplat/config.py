@@ -94,6 +94,17 @@ def _describe(error) -> str:
     return f"key '{key}': value {error.instance!r} is not allowed; must be {allowed}"
 
 
+def deep_merge(base: dict, over: dict) -> dict:
+    """``over`` applied on a copy of ``base``; nested dicts are merged key by key."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
 def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>") -> Any:
     """Validate ``data`` against ``workflow/schemas/<schema_name>``; fill defaults in place.
 

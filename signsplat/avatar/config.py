@@ -14,7 +14,7 @@ import copy
 from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, get_origin, get_type_hints
 
-from signsplat.config import validate
+from signsplat.config import deep_merge, validate
 
 SCHEMA = "stages/avatar.schema.yaml"
 
@@ -174,16 +174,6 @@ class AvatarConfig:
     eval: EvalConfig
 
 
-def _merge(base: dict, over: dict) -> dict:
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
-
-
 def _build(cls, data: dict):
     """``cls`` from a resolved dict (every field present: the schema filled the defaults)."""
     hints = get_type_hints(cls)
@@ -206,7 +196,7 @@ def resolve(data: dict | None, source: str = "<avatar config>") -> dict:
     data = copy.deepcopy(data or {})
     profile = data.get("profile", "demo")
     validate(copy.deepcopy(data), SCHEMA, source)  # names the bad key before merging
-    merged = _merge(PROFILES.get(profile, {}), data)
+    merged = deep_merge(PROFILES.get(profile, {}), data)
     merged["profile"] = profile
     return validate(merged, SCHEMA, source)
 

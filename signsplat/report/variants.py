@@ -11,9 +11,10 @@ training iterations, image resolution or point budget of the ``sweep.base`` sett
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 from typing import Any
+
+from signsplat.config import deep_merge
 
 # (variant name, row label, override, switches of the row); `full` flips nothing.
 _SWITCHES: list[tuple[str, str, dict]] = [
@@ -32,17 +33,6 @@ SWITCH_FIELDS = {"regularize": ("regularize", "enabled"), "densify": ("strategy"
                  "accumulate": ("train", "accumulate"), "pose_dependent": ("model", "pose_dependent")}
 SWEEP_AXES = {"iterations": ("train", "iterations"), "resolution": ("train", "resolution"),
               "max_points": ("strategy", "max_points")}
-
-
-def deep_merge(base: dict, over: dict) -> dict:
-    """``over`` applied on a copy of ``base``; nested dicts are merged key by key."""
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = deep_merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
 
 
 def _get(cfg: dict, path: tuple[str, str]) -> Any:

@@ -4,8 +4,9 @@ base, each sweep point changes exactly one setting of the centre."""
 import pytest
 
 from signsplat.avatar.config import resolve
-from signsplat.report.variants import (SWITCH_FIELDS, ablation_plan, deep_merge, sweep_plan,
-                                       sweep_values, switch_values)
+from signsplat.config import deep_merge
+from signsplat.report.variants import (SWITCH_FIELDS, ablation_plan, sweep_plan, sweep_values,
+                                       switch_values)
 
 
 def _diff(a, b, prefix=()):

@@ -8,7 +8,8 @@
 import copy
 
 from signsplat.avatar.config import EVAL_ONLY_KEYS, resolve as resolve_avatar_config
-from signsplat.report.variants import ablation_plan, deep_merge, sweep_plan, sweep_values
+from signsplat.config import deep_merge
+from signsplat.report.variants import ablation_plan, sweep_plan, sweep_values
 
 AVATAR_BASE = config.get("avatar", {})
 AVATAR_VARIANTS = {
