@@ -32,6 +32,7 @@ from signsplat.fit import filters as F
 from signsplat.fit.bodyfit import HAND_MEAN, KeypointModel
 from signsplat.fit.cameras import Rig, intrinsics_from_fov, project
 from signsplat.fit.sequence import FitResult
+from signsplat.fit.solver import Stage
 from signsplat.io.atomic import write_bytes_atomic
 from signsplat.io.tables import write_table
 
@@ -89,11 +90,13 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
             body: str | os.PathLike, *, frames: str | os.PathLike | None = None,
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
             device: str = "cpu", fps: float = 25.0, view: int | None = None,
-            max_frames: int | None = None
+            max_frames: int | None = None, masks: str | os.PathLike | None = None
             ) -> tuple[FitResult, np.ndarray, str, KeypointModel]:
     """Load, clean and fit. Returns (result, cleaned obs (V,T,133,3), mode, keypoint model).
 
     ``view`` restricts a multi-camera scene to one camera (single-view fit of that view).
+    ``masks``: a masks (or frames) table whose person masks feed the multi-view stages with
+    silhouette weights (read only when such a stage exists).
     """
     from signsplat.fit.multiview import fit_multiview
     from signsplat.fit.singleview import fit_singleview
@@ -139,10 +142,16 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
         K = np.stack([intrinsics_from_fov(w, h, sec["approx_fov_degrees"])
                       for w, h in zip(rig_cal.width, rig_cal.height)])
     kpm = load_keypoint_model(body, num_betas, num_expression, device)
+    mask_arr = None
+    if mode == "multiview" and masks and any(
+            Stage.from_config(s).uses_silhouette for s in sec["stages"]):
+        mask_arr = D.read_masks(masks, seq_frames, rig_cal.width, rig_cal.height)
+        if view is not None:
+            mask_arr = mask_arr[view:view + 1]
     try:
         if mode == "multiview":
             result = fit_multiview(kpm, obs, seq_frames, K, rig_cal.width, rig_cal.height, cfg,
-                                   device=device)
+                                   device=device, masks=mask_arr)
         else:
             result = fit_singleview(kpm, obs[0], seq_frames, K[0], int(rig_cal.width[0]),
                                     int(rig_cal.height[0]), cfg, device=device)
@@ -283,6 +292,8 @@ def _parser() -> argparse.ArgumentParser:
                    "Without it, sizes come from --frames and intrinsics are approximate")
     p.add_argument("--body", required=True, help="body model .npz")
     p.add_argument("--frames", help="frames table (timestamps; images for overlays)")
+    p.add_argument("--masks", help="person masks (perception masks table, or a frames table "
+                   "with masks) for the multi-view stages with silhouette weights")
     p.add_argument("--out-dir", required=True)
     p.add_argument("--scene")
     p.add_argument("--keypoints-source", default="detected",
@@ -319,7 +330,7 @@ def fit(argv: list[str]) -> int:
                                      num_betas=args.num_betas,
                                      num_expression=args.num_expression, device=str(device),
                                      fps=args.fps, view=args.view,
-                                     max_frames=args.max_frames)
+                                     max_frames=args.max_frames, masks=args.masks)
     result.seconds["cpu"] = time.process_time() - c0
     out_dir = Path(args.out_dir)
     scene = str(result.log["scene"])

@@ -110,6 +110,42 @@ def read_frames(path: str | os.PathLike) -> pd.DataFrame:
     return df
 
 
+def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> np.ndarray:
+    """Person masks of every view and frame -> (V,T,H,W) bool.
+
+    ``path``: a perception ``masks`` table or a simulator ``frames`` table (both have ``view``,
+    ``frame`` and ``mask``, a PNG path relative to the table's folder). ``frames (T,)`` are the
+    fit's frame numbers; views are 0..V-1 with the sizes ``widths``/``heights (V,)``. A frame
+    without a row (or an empty path) gets an empty mask, which the silhouette terms skip.
+    """
+    from signsplat.io.images import read_mask
+
+    path = Path(path)
+    try:
+        df = pd.read_parquet(path, columns=["view", "frame", "mask"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(f"{path}: not a masks or frames table with columns view, frame, "
+                         f"mask ({exc})") from None
+    W, H = int(np.max(widths)), int(np.max(heights))
+    if len(set(np.asarray(widths).tolist())) > 1 or len(set(np.asarray(heights).tolist())) > 1:
+        raise InputError(f"{path}: the silhouette terms need one image size for all views, "
+                         f"got widths {list(widths)} and heights {list(heights)}")
+    V = len(widths)
+    index = {int(f): i for i, f in enumerate(frames)}
+    out = np.zeros((V, len(frames), H, W), bool)
+    for view, frame, rel in df.itertuples(index=False):
+        if not 0 <= int(view) < V:
+            raise InputError(f"{path}: view {int(view)} but the rig has {V} cameras")
+        if int(frame) not in index or not rel:
+            continue
+        m = read_mask(path.parent / rel)
+        if m.shape != (H, W):
+            raise InputError(f"{path.parent / rel}: mask is {m.shape[1]}x{m.shape[0]}, the "
+                             f"camera's image {W}x{H}")
+        out[int(view), index[int(frame)]] = m
+    return out
+
+
 def rig_from_frames(frames_df: pd.DataFrame, path: str | os.PathLike) -> Rig:
     """Image sizes per view from each view's first image (no calibration); K is a placeholder
     (identity focal) to be replaced by approximate intrinsics; R = I, t = 0."""

@@ -226,12 +226,14 @@ def _choose_by_consistency(cands, obs, K, R, t, status, frames, prior_margin=1.0
 
 def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   width, height, cfg: dict, device: torch.device | str = "cpu",
-                  dtype=torch.float32) -> seq.FitResult:
+                  dtype=torch.float32, masks: np.ndarray | None = None) -> seq.FitResult:
     """Fit SMPL-X + cameras to cleaned observations.
 
     kpm: keypoint model; obs (V,T,133,3) pixels + confidence (0 = ignore, no NaN);
     frames (T,) frame numbers; K (V,3,3) intrinsics (calibrated or approximate); width/height
-    (V,) pixels; cfg: the validated ``fit`` config section (``cfg['multiview']`` for this mode).
+    (V,) pixels; cfg: the validated ``fit`` config section (``cfg['multiview']`` for this mode);
+    masks (V,T,H,W) bool person masks for the stages with silhouette weights (a stage with
+    such weights and no masks raises ValueError).
     """
     t0 = time.perf_counter()
     mv = cfg["multiview"]
@@ -263,7 +265,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
              "body frame +y" if up is None else np.round(up, 4).tolist())
     weights = {"upright": mv["upright_weight"], "camera_anchor": mv["camera_anchor_weight"]}
     problem = make_problem(kpm, obs, cfg, frames, weights=weights,
-                           dtype=dtype, device=device, up=up, level_cameras=up is not None)
+                           dtype=dtype, device=device, up=up, level_cameras=up is not None,
+                           masks=masks)
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

@@ -4,6 +4,8 @@ A fit is a list of :class:`Stage` s. Each stage optimises some parameter groups 
 ``root``, ``body``, ``hands``, ``face``, ``cameras``) with Adam and a cosine learning-rate
 decay, batched over the frames it is given. :func:`run_warm_started` runs a stage chunk by chunk
 along the sequence, initialising each chunk from the last solved frame of the previous one.
+A stage with silhouette weights also poses the full mesh and adds the mask terms of
+:mod:`signsplat.fit.silhouette`; other stages never touch the masks.
 """
 
 from __future__ import annotations
@@ -18,10 +20,17 @@ import torch
 from signsplat.fit import objective as obj
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams
+from signsplat.fit.silhouette import (
+    SilhouetteTargets,
+    silhouette_terms,
+    targets_from_masks,
+)
 
 log = logging.getLogger(__name__)
 
 GROUPS = ("betas", "root", "body", "hands", "face", "cameras")
+#: the mask terms a stage can weight (signsplat.fit.silhouette.silhouette_terms)
+SILHOUETTE_TERMS = ("inside", "cover")
 
 
 @dataclass
@@ -40,6 +49,22 @@ class Stage:
     #: adam (cosine-decayed lr), lbfgs (strong Wolfe line search) or lm (per-frame
     #: Levenberg-Marquardt, cameras and betas fixed: signsplat.fit.lm; lr unused)
     optimizer: str = "adam"
+    #: weights of the mask terms (signsplat.fit.silhouette): {"inside": w, "cover": w} in
+    #: px^-2; both 0 (the default) = the masks are not used and nothing is computed
+    silhouette: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        bad = set(self.silhouette) - set(SILHOUETTE_TERMS)
+        if bad:
+            raise ValueError(f"stage {self.name!r}: unknown silhouette term(s) {sorted(bad)}; "
+                             f"known {list(SILHOUETTE_TERMS)}")
+        if self.optimizer == "lm" and self.uses_silhouette:
+            raise ValueError(f"stage {self.name!r}: the silhouette terms need a gradient "
+                             "optimizer (adam or lbfgs), not lm")
+
+    @property
+    def uses_silhouette(self) -> bool:
+        return any(float(v) > 0 for v in self.silhouette.values())
 
     @classmethod
     def from_config(cls, cfg: dict) -> "Stage":
@@ -52,7 +77,8 @@ class Stage:
                    groups=groups, parts=dict(cfg.get("parts", {})),
                    lr_scale=dict(cfg.get("lr_scale", {})), smooth=bool(cfg.get("smooth", True)),
                    final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)),
-                   sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"))
+                   sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"),
+                   silhouette=dict(cfg.get("silhouette", {})))
 
 
 @dataclass
@@ -73,18 +99,21 @@ class Problem:
     up: torch.Tensor | None = None  # (3,) world vertical in the fit frame (upright prior)
     #: the vertical follows the cameras being solved (level rig: see objective.level_rig_up)
     level_cameras: bool = False
+    #: mask targets for stages with silhouette weights (None: no masks were given)
+    silhouette: SilhouetteTargets | None = None
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
-                 level_cameras: bool = False) -> Problem:
+                 level_cameras: bool = False, masks: np.ndarray | None = None) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
     confidence 0. ``weights`` overrides entries of ``cfg['weights']``. ``up``: the world
     vertical of the upright prior; with ``level_cameras`` (and ``up`` given, i.e. the rig's
     x axes span a plane) the vertical is recomputed from the current cameras in every step.
+    ``masks (V,T,H,W)`` bool person masks: the targets of stages with silhouette weights.
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
@@ -103,7 +132,9 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
                 for k, v in (anchor or {}).items()},
         pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device),
         up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device),
-        level_cameras=bool(level_cameras and up is not None))
+        level_cameras=bool(level_cameras and up is not None),
+        silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
+                                                                 device=device))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -123,7 +154,11 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     w = problem.weights
     dev, dt = params.transl.device, params.transl.dtype
     inputs = params.model_inputs(sel)
-    _, kp3d, _ = problem.kpm(**inputs)
+    sil = stage.uses_silhouette
+    if sil and problem.silhouette is None:
+        raise ValueError(f"stage {stage.name!r} weights the silhouette terms but no person "
+                         "masks were given (fit --masks: the perception stage's masks table)")
+    _, kp3d, body = problem.kpm(full=sil, **inputs)
     K, R, t = cams()
     kpw = obj.part_weight_vector(stage.parts, dtype=dt, device=dev)
     sigma = problem.sigma_px if stage.sigma_px is None else stage.sigma_px
@@ -143,6 +178,12 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
             (cams.rotvec * cams.free) ** 2 + (cams.dt * cams.free) ** 2).sum()
     if problem.anchor:
         terms["anchor"] = obj.anchor(sub, {k: v[sel] for k, v in problem.anchor.items()}, w)
+    if sil:
+        frames = torch.arange(problem.obs.shape[1], device=dev)[sel]
+        inside, cover = silhouette_terms(body.vertices, problem.kpm.model.faces, K, R, t,
+                                         problem.silhouette, frames)
+        terms["silhouette_inside"] = float(stage.silhouette.get("inside", 0.0)) * inside
+        terms["silhouette_cover"] = float(stage.silhouette.get("cover", 0.0)) * cover
     return terms
 
 

@@ -1,7 +1,8 @@
 # Stage 4: SMPL-X fitting (paper 3.1). Mode multiview when the sequence has more than one
 # camera, else singleview (the CLI decides from the number of cameras; config fit.mode forces).
 # Keypoints: config fit.keypoints = detected (perception stage, default) or ground_truth
-# (the simulator's keypoints_gt.parquet; synthetic scenes only).
+# (the simulator's keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette
+# stage) come from the same source.
 
 FIT_CFG = config.get("fit", {})
 
@@ -12,10 +13,19 @@ def fit_keypoints(wildcards):
     return f"{RESULTS}/{wildcards.scene}/perception/keypoints.parquet"
 
 
+def fit_masks(wildcards):
+    # the silhouette stage's person masks: the perception stage's, or with ground-truth
+    # keypoints the simulator's (the frames table carries them)
+    if FIT_CFG.get("keypoints", "detected") == "ground_truth" and wildcards.scene in SCENES:
+        return frames_table(wildcards)
+    return f"{RESULTS}/{wildcards.scene}/perception/masks.parquet"
+
+
 def fit_inputs(wildcards):
     files = {
         "keypoints": fit_keypoints(wildcards),
         "frames": frames_table(wildcards),
+        "masks": fit_masks(wildcards),
         "body": rules.body_model.output[0],
     }
     if wildcards.scene in SCENES:
@@ -61,6 +71,7 @@ rule fit_smplx:
     shell:
         "{PY} -m signsplat fit --config-json {params.cfg:q} --scene {wildcards.scene}"
         " --keypoints {input.keypoints:q} --frames {input.frames:q} --body {input.body:q}"
+        " --masks {input.masks:q}"
         " --keypoints-source {params.source} --num-betas {params.betas}"
         " --num-expression {params.expr} --device {params.device} --threads {threads}"
         " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"

@@ -1,0 +1,155 @@
+"""Silhouette terms of the multi-view fit: the person masks constrain the body's outline.
+
+Why: keypoints pin the skeleton but not the surface. With detections a few pixels off, the
+fitted body and cameras of ``studio6`` sat ~2 px from the truth in the images, and the avatar
+trained on them blurs (docs/avatar.md). Six masks constrain the outline from six directions.
+
+Two one-sided chamfer terms per (view, frame), both in squared pixels and clamped at
+``clamp_px`` so a wrong mask pulls with a bounded force:
+
+- ``inside``: every vertex projecting into the image must lie inside the mask - the mean of
+  the mask's outside distance transform (bilinear, 0 inside) over those vertices. Occlusion
+  cannot break it: every point of the body projects inside its own silhouette.
+- ``cover``: every contour pixel of the mask must have a silhouette ("rim") vertex of the body
+  near it - the mean squared distance from the contour pixels to the nearest rim vertex
+  (normal at most ``rim_cos`` off perpendicular to the viewing ray). Rim vertices are chosen
+  and matched without gradient (a k-d tree per image); the gradient flows through the matched
+  vertices' projections. Contour pixels on the image border (a body cut by the frame) are not
+  silhouette and are left out.
+
+Frames whose mask is empty (no person detected) contribute nothing. Both terms are summed over
+views and averaged over frames, like the keypoint term (:mod:`signsplat.fit.objective`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+
+@dataclass
+class SilhouetteTargets:
+    """Per-(view, frame) targets built once from masks (see :func:`targets_from_masks`).
+
+    ``outside (V*T,1,H,W)`` float distance (px) to the mask, 0 inside; ``contours`` list over
+    ``V*T`` of (N,2) float32 contour pixels (x, y); ``valid (V,T)`` bool: the mask is non-empty.
+    """
+
+    outside: torch.Tensor
+    contours: list[np.ndarray]
+    valid: torch.Tensor
+    width: int
+    height: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.valid.shape)
+
+
+def mask_contour(mask: np.ndarray, max_points: int) -> np.ndarray:
+    """(N,2) float32 x, y of the mask's boundary pixels (inner 4-neighbour boundary), without
+    the image border, evenly subsampled to at most ``max_points``."""
+    m = mask.astype(np.uint8)
+    boundary = mask & ~cv2.erode(m, np.ones((3, 3), np.uint8)).astype(bool)
+    boundary[0, :] = boundary[-1, :] = boundary[:, 0] = boundary[:, -1] = False
+    ys, xs = np.nonzero(boundary)
+    pts = np.stack([xs, ys], 1).astype(np.float32)
+    if len(pts) > max_points:
+        pts = pts[np.linspace(0, len(pts) - 1, max_points).astype(np.int64)]
+    return pts
+
+
+def targets_from_masks(masks: np.ndarray, max_contour_points: int = 300,
+                       dtype=torch.float32, device="cpu") -> SilhouetteTargets:
+    """``masks (V,T,H,W)`` bool -> :class:`SilhouetteTargets`."""
+    masks = np.asarray(masks, bool)
+    if masks.ndim != 4:
+        raise ValueError(f"masks must be (views, frames, height, width), got {masks.shape}")
+    V, T, H, W = masks.shape
+    outside = np.zeros((V * T, 1, H, W), np.float32)
+    contours = []
+    valid = masks.reshape(V * T, H * W).any(1)
+    for i, m in enumerate(masks.reshape(V * T, H, W)):
+        if valid[i]:
+            outside[i, 0] = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
+            contours.append(mask_contour(m, max_contour_points))
+        else:
+            contours.append(np.zeros((0, 2), np.float32))
+    return SilhouetteTargets(torch.as_tensor(outside, dtype=dtype, device=device), contours,
+                             torch.as_tensor(valid.reshape(V, T), device=device), W, H)
+
+
+def vertex_normals(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals (B,N,3) of ``verts (B,N,3)``; 0 for isolated ones."""
+    f = faces.long()
+    v0, v1, v2 = verts[:, f[:, 0]], verts[:, f[:, 1]], verts[:, f[:, 2]]
+    fn = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)
+    n = torch.zeros_like(verts).index_add_(1, f.reshape(-1), fn.repeat_interleave(3, dim=1))
+    return torch.nn.functional.normalize(n, dim=-1, eps=1e-12)
+
+
+def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
+                     t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
+                     clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(inside, cover) of ``verts (B,N,3)`` world metres, frames ``frames (B,)`` of the targets.
+
+    K, R, t (V,...) cameras. Vertices at or behind the ``near`` plane are ignored by both terms.
+    """
+    V = K.shape[0]
+    B = verts.shape[0]
+    H, W = targets.height, targets.width
+    Xc = torch.einsum("vij,bnj->vbni", R, verts) + t[:, None, None, :]
+    z = Xc[..., 2]
+    front = z > near
+    zs = torch.where(front, z, torch.ones_like(z))
+    uv = torch.einsum("vij,vbnj->vbni", K, Xc)[..., :2] / zs[..., None]  # (V,B,N,2)
+    valid = targets.valid[:, frames]  # (V,B)
+    rows = (torch.arange(V, device=verts.device)[:, None] * targets.valid.shape[1]
+            + frames[None].to(verts.device)).reshape(-1)
+    grid = torch.stack([uv[..., 0] / (W - 1), uv[..., 1] / (H - 1)], -1) * 2 - 1
+    grid = torch.nan_to_num(grid, nan=2.0, posinf=2.0, neginf=-2.0).clamp(-2, 2)
+    d = torch.nn.functional.grid_sample(targets.outside[rows], grid.reshape(V * B, 1, -1, 2),
+                                        align_corners=True, padding_mode="border")
+    d = d.reshape(V, B, -1)
+    in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
+        (uv[..., 1] < H - 2)
+    w = (in_image & valid[..., None]).to(d.dtype)
+    inside = ((d.clamp(max=clamp_px) ** 2 * w).sum(-1) / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
+
+    with torch.no_grad():
+        n = vertex_normals(verts, faces)
+        centres = -torch.einsum("vji,vj->vi", R, t)  # (V,3)
+        ray = torch.nn.functional.normalize(verts[None] - centres[:, None, None], dim=-1)
+        rim = ((n[None] * ray).sum(-1).abs() < rim_cos) & front  # (V,B,N)
+        uv_np = uv.detach().cpu().double().numpy()
+        rim_np = rim.cpu().numpy()
+    sel_v, sel_b, sel_n, pts = [], [], [], []
+    frames_np = frames.cpu().numpy()
+    for v in range(V):
+        for b in range(B):
+            c = targets.contours[v * targets.valid.shape[1] + int(frames_np[b])]
+            ids = np.nonzero(rim_np[v, b])[0]
+            if len(c) == 0 or len(ids) == 0:
+                continue
+            _, j = cKDTree(uv_np[v, b, ids]).query(c)
+            sel_v.append(np.full(len(c), v))
+            sel_b.append(np.full(len(c), b))
+            sel_n.append(ids[j])
+            pts.append(c)
+    if not pts:
+        return inside, verts.new_zeros(())
+    iv = torch.as_tensor(np.concatenate(sel_v), device=verts.device)
+    ib = torch.as_tensor(np.concatenate(sel_b), device=verts.device)
+    idx = torch.as_tensor(np.concatenate(sel_n), device=verts.device)
+    p = torch.as_tensor(np.concatenate(pts), dtype=verts.dtype, device=verts.device)
+    dist2 = ((uv[iv, ib, idx] - p) ** 2).sum(-1).clamp(max=clamp_px ** 2)
+    key = iv * B + ib
+    per = verts.new_zeros(V * B).index_add_(0, key, dist2)
+    cnt = verts.new_zeros(V * B).index_add_(0, key, torch.ones_like(dist2))
+    cover = (per / cnt.clamp(min=1)).sum() / max(B, 1)
+    return inside, cover

@@ -1,0 +1,205 @@
+"""The mask (silhouette) terms of the multi-view fit: targets, gradients, hard cases, wiring."""
+
+import json
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from conftest import observe, random_motion, synthetic_rig
+
+from signsplat.config import validate
+from signsplat.errors import InputError
+from signsplat.fit import data as D
+from signsplat.fit.bodyfit import FitParams
+from signsplat.fit.cameras import CameraParams
+from signsplat.fit.silhouette import mask_contour, silhouette_terms, targets_from_masks
+from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
+
+
+def _vertices(kpm, params):
+    inputs = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in params.items()
+              if k not in ("leye_pose", "reye_pose")}
+    with torch.no_grad():
+        return kpm.model(**inputs).vertices
+
+
+def _render_masks(kpm, params, rig):
+    """(V,T,H,W) masks of the body: every projected triangle filled."""
+    verts = _vertices(kpm, params).double().numpy()
+    faces = kpm.model.faces.numpy()
+    V, T = rig.num_views, verts.shape[0]
+    H, W = int(rig.height[0]), int(rig.width[0])
+    out = np.zeros((V, T, H, W), bool)
+    for v in range(V):
+        Xc = verts @ rig.R[v].T + rig.t[v]
+        uv = Xc @ rig.K[v].T
+        uv = uv[..., :2] / uv[..., 2:]
+        for t in range(T):
+            img = np.zeros((H, W), np.uint8)
+            for tri in np.round(uv[t][faces] * 16).astype(np.int32):  # one by one: no
+                cv2.fillConvexPoly(img, tri, 1, shift=4)  # even-odd holes where they overlap
+            out[v, t] = img > 0
+    return out
+
+
+def _t(a):
+    return torch.as_tensor(np.asarray(a), dtype=torch.float32)
+
+
+def test_contour_and_targets():
+    m = np.zeros((2, 1, 32, 40), bool)
+    m[0, 0, 8:20, 10:30] = True  # a rectangle inside the image
+    m[1, 0, 20:, 5:15] = False
+    m[1, 0, 20:32, 5:15] = True  # touches the bottom border
+    c = mask_contour(m[0, 0], 1000)
+    assert len(c) == 2 * 20 + 2 * 12 - 4  # the rectangle's boundary ring
+    assert ((c[:, 0] == 10) | (c[:, 0] == 29) | (c[:, 1] == 8) | (c[:, 1] == 19)).all()
+    c1 = mask_contour(m[1, 0], 1000)
+    assert (c1[:, 1] < 31).all()  # the image border is not silhouette
+    assert len(mask_contour(m[0, 0], 10)) == 10
+    tg = targets_from_masks(m)
+    assert tg.valid.tolist() == [[True], [True]]
+    assert float(tg.outside[0, 0, 10, 15]) == 0.0  # inside
+    assert abs(float(tg.outside[0, 0, 8, 5]) - 5.0) < 0.1  # 5 px left of the rectangle
+    empty = targets_from_masks(np.zeros((1, 2, 8, 8), bool))
+    assert not empty.valid.any() and all(len(c) == 0 for c in empty.contours)
+    with pytest.raises(ValueError, match="views, frames"):
+        targets_from_masks(np.zeros((8, 8), bool))
+
+
+def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
+    T, V = 2, 3
+    gt = random_motion(T, seed=3)
+    rig = synthetic_rig(V, arc=120)
+    tg = targets_from_masks(_render_masks(kpm, gt, rig))
+    verts = _vertices(kpm, gt)
+    K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
+    frames = torch.arange(T)
+    inside0, cover0 = silhouette_terms(verts, kpm.model.faces, K, R, t, tg, frames)
+    shift = torch.tensor([0.03, -0.02, 0.0], requires_grad=True)
+    inside, cover = silhouette_terms(verts + shift, kpm.model.faces, K, R, t, tg, frames)
+    # at the truth: contour pixels ~1 px from the nearest outline vertex (the mesh spacing)
+    assert float(inside0) < 0.05 and float(cover0) < 2.0 * V
+    assert float(inside.detach()) > max(1.0, 100 * float(inside0))
+    assert float(cover.detach()) > 5 * float(cover0)
+    (inside + cover).backward()
+    # the gradient points away from the truth: a small step against it reduces the shift
+    assert float(shift.grad @ shift.detach()) > 0
+
+
+def test_hard_cases_stay_finite(kpm):
+    """Empty masks (no person), vertices behind the camera, a degenerate (zero-area) mesh."""
+    T, V = 2, 2
+    gt = random_motion(T, seed=4)
+    rig = synthetic_rig(V, arc=90)
+    masks = _render_masks(kpm, gt, rig)
+    masks[:, 1] = False  # frame 1: nobody in any view
+    tg = targets_from_masks(masks)
+    verts = _vertices(kpm, gt).clone()
+    K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
+    cases = {"behind": verts - 10.0 * R[0, 2],  # pushed behind camera 0
+             "collapsed": torch.zeros_like(verts) + verts[:, :1]}  # every vertex in one point
+    for name, x in cases.items():
+        x = x.clone().requires_grad_(True)
+        inside, cover = silhouette_terms(x, kpm.model.faces, K, R, t, tg, torch.arange(T))
+        (inside + cover).backward()
+        assert torch.isfinite(inside) and torch.isfinite(cover), name
+        assert torch.isfinite(x.grad).all(), name
+        assert float(x.grad[1].abs().sum()) == 0.0, name  # the empty frame pulls nothing
+    nothing = targets_from_masks(np.zeros((V, T, 256, 256), bool))
+    inside, cover = silhouette_terms(verts, kpm.model.faces, K, R, t, nothing, torch.arange(T))
+    assert float(inside) == 0.0 and float(cover) == 0.0
+
+
+def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm):
+    """Keypoints weighted 0: the masks alone move a body started 3 cm off back towards the
+    truth (a sign or projection error would push it away)."""
+    T, V = 2, 3
+    gt = random_motion(T, seed=5)
+    rig = synthetic_rig(V, arc=120)
+    masks = _render_masks(kpm, gt, rig)
+    obs = observe(kpm, gt, rig)
+    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
+    init["betas"] = gt["betas"][:1]
+    init["transl"] = gt["transl"] + np.array([0.03, 0.02, -0.02])
+    params = FitParams(T, 10, 10, init=init)
+    cams = CameraParams(rig, fixed=list(range(V)))
+    cfg = validate({}, "stages/fit.schema.yaml")
+    problem = make_problem(kpm, obs, cfg, np.arange(T), masks=masks)
+    off = {"body": 0, "feet": 0, "face": 0, "left_hand": 0, "right_hand": 0}
+    stage = Stage(name="sil", iterations=60, lr=0.002, groups=("root",), parts=off,
+                  silhouette={"inside": 100.0, "cover": 100.0})
+    before = np.linalg.norm(init["transl"] - gt["transl"], axis=1).mean()
+    run_stage(problem, params, cams, stage)
+    after = np.linalg.norm(params.transl.detach().numpy() - gt["transl"], axis=1).mean()
+    assert after < 0.4 * before
+    terms = loss_terms(problem, params, cams, stage)
+    assert {"silhouette_inside", "silhouette_cover"} <= set(terms)
+    assert float(terms["data"].detach()) == 0.0
+
+
+def test_stage_rules_and_missing_masks(kpm):
+    with pytest.raises(ValueError, match="not lm"):
+        Stage(name="j", iterations=1, lr=1.0, groups=("root",), optimizer="lm",
+              silhouette={"cover": 1.0})
+    with pytest.raises(ValueError, match="unknown silhouette term"):
+        Stage.from_config({"name": "s", "iterations": 1, "lr": 0.1, "groups": ["root"],
+                           "silhouette": {"outline": 1.0}})
+    assert not Stage(name="z", iterations=1, lr=0.1, groups=("root",),
+                     silhouette={"inside": 0.0}).uses_silhouette
+    T, V = 2, 2
+    gt = random_motion(T, seed=6)
+    rig = synthetic_rig(V)
+    problem = make_problem(kpm, observe(kpm, gt, rig), validate({}, "stages/fit.schema.yaml"))
+    params = FitParams(T, 10, 10)
+    stage = Stage(name="needs_masks", iterations=1, lr=0.1, groups=("root",),
+                  silhouette={"inside": 1.0})
+    with pytest.raises(ValueError, match="needs_masks.*no person masks"):
+        loss_terms(problem, params, CameraParams(rig), stage)
+
+
+def test_read_masks(tmp_path):
+    (tmp_path / "m").mkdir()
+    m = np.zeros((16, 24), np.uint8)
+    m[4:8, 5:9] = 255
+    cv2.imwrite(str(tmp_path / "m/a.png"), m)
+    cv2.imwrite(str(tmp_path / "m/small.png"), m[:8])
+    pd.DataFrame({"view": [0, 1, 1], "frame": [3, 4, 9], "mask": ["m/a.png", "m/a.png", ""]}
+                 ).to_parquet(tmp_path / "masks.parquet")
+    out = D.read_masks(tmp_path / "masks.parquet", np.array([3, 4, 5]), [24, 24], [16, 16])
+    assert out.shape == (2, 3, 16, 24)
+    assert out[0, 0].sum() == 16 and out[1, 1].sum() == 16
+    assert out[0, 1:].sum() == 0 and out[1, 0].sum() == 0 and out[:, 2].sum() == 0
+    pd.DataFrame({"view": [0], "frame": [3], "mask": ["m/small.png"]}).to_parquet(
+        tmp_path / "bad.parquet")
+    with pytest.raises(InputError, match="small.png"):
+        D.read_masks(tmp_path / "bad.parquet", np.array([3]), [24], [16])
+    pd.DataFrame({"view": [2], "frame": [3], "mask": ["m/a.png"]}).to_parquet(
+        tmp_path / "view.parquet")
+    with pytest.raises(InputError, match="view 2"):
+        D.read_masks(tmp_path / "view.parquet", np.array([3]), [24, 24], [16, 16])
+    with pytest.raises(InputError, match="nothere.parquet"):
+        D.read_masks(tmp_path / "nothere.parquet", np.array([3]), [24], [16])
+
+
+def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, capsys):
+    """Without silhouette weights the masks file is never opened (a missing one is fine); with
+    them, a missing file is an error naming it."""
+    from test_fit import FAST_MV, _write_inputs
+
+    from signsplat.cli import main
+
+    d = _write_inputs(tmp_path, kpm)
+    cfg = json.loads(json.dumps(FAST_MV))
+    for st in cfg["multiview"]["stages"]:
+        st["iterations"] = 5
+    args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
+            str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
+            str(body_path), "--masks", str(tmp_path / "missing_masks.parquet")]
+    assert main(args + ["--config-json", json.dumps(cfg), "--out-dir", str(tmp_path / "a")]) == 0
+    cfg["multiview"]["stages"].append({"name": "sil", "iterations": 2, "lr": 0.001,
+                                       "groups": ["root"], "silhouette": {"cover": 10}})
+    assert main(args + ["--config-json", json.dumps(cfg), "--out-dir", str(tmp_path / "b")]) == 2
+    assert "missing_masks.parquet" in capsys.readouterr().err
