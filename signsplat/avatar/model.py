@@ -39,6 +39,7 @@ from torch import nn
 
 from signsplat.avatar.config import ModelConfig
 from signsplat.avatar.upsample import PointAnchors
+from signsplat.geometry.mesh import face_normals, vertex_normals
 
 SH_C0 = 0.28209479177387814  # Y_0^0; gsplat colour = SH_C0 * f_dc + 0.5 (+ higher bands)
 
@@ -83,23 +84,6 @@ def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
 
 def xyzw_to_wxyz(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[..., 3:], q[..., :3]], -1)
-
-
-def face_normals(vertices: torch.Tensor, faces: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
-    """Unit normals (..., F, 3) of the faces (F, 3) of (..., V, 3) vertices (zero if degenerate)."""
-    tri = vertices[..., faces, :]
-    n = torch.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1)
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(eps)
-
-
-def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals (B, V, 3) of (B, V, 3) vertices."""
-    tri = vertices[:, faces]  # (B, F, 3, 3)
-    fn = torch.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0], dim=-1)
-    vn = torch.zeros_like(vertices)
-    for k in range(3):
-        vn = vn.index_add(1, faces[:, k], fn)
-    return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def morton_order(points: torch.Tensor, bits: int = 10) -> torch.Tensor:

@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from signsplat.geometry.mesh import vertex_normals
+
 
 @dataclass
 class SilhouetteTargets:
@@ -83,15 +85,6 @@ def targets_from_masks(masks: np.ndarray, max_contour_points: int = 300,
                              torch.as_tensor(valid.reshape(V, T), device=device), W, H)
 
 
-def vertex_normals(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals (B,N,3) of ``verts (B,N,3)``; 0 for isolated ones."""
-    f = faces.long()
-    v0, v1, v2 = verts[:, f[:, 0]], verts[:, f[:, 1]], verts[:, f[:, 2]]
-    fn = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)
-    n = torch.zeros_like(verts).index_add_(1, f.reshape(-1), fn.repeat_interleave(3, dim=1))
-    return torch.nn.functional.normalize(n, dim=-1, eps=1e-12)
-
-
 def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
                      t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
                      clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05
@@ -122,7 +115,7 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     inside = ((d.clamp(max=clamp_px) ** 2 * w).sum(-1) / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
 
     with torch.no_grad():
-        n = vertex_normals(verts, faces)
+        n = vertex_normals(verts, faces.long())
         centres = -torch.einsum("vji,vj->vi", R, t)  # (V,3)
         ray = torch.nn.functional.normalize(verts[None] - centres[:, None, None], dim=-1)
         rim = ((n[None] * ray).sum(-1).abs() < rim_cos) & front  # (V,B,N)

@@ -1,1 +1,2 @@
-"""Small shared geometry (numpy): similarity alignment and rotation distances."""
+"""Small shared geometry: similarity alignment and rotation distances (numpy), mesh normals
+(torch)."""
