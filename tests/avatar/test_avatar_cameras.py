@@ -94,10 +94,12 @@ def test_training_pulls_perturbed_cameras_back(scene):  # noqa: F811
     assert after < 0.6 * before, (before, after)
     log = tr.log_rows[-1]
     assert log["camera_rotation_deg_max"] > 0.5
-    # the auto setting follows the SMPL-X source: ground-truth cameras stay fixed
-    gt = _cfg(train={"smplx_source": "ground_truth"})
+    # the auto setting follows the SMPL-X source: ground-truth cameras stay fixed; the default
+    # (false) never refines
+    gt = _cfg(train={"smplx_source": "ground_truth", "refine_cameras": "auto"})
     assert not cameras_refined(gt)
-    assert cameras_refined(_cfg(train={"smplx_source": "fitted"}))
+    assert cameras_refined(_cfg(train={"smplx_source": "fitted", "refine_cameras": "auto"}))
+    assert not cameras_refined(_cfg(train={"smplx_source": "fitted"}))
     assert np.isfinite([r["loss"] for r in tr.log_rows]).all()
 
 
