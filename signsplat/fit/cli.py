@@ -224,8 +224,10 @@ def evaluate(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode: str, 
         if not idx:
             raise InputError(f"{gt_smplx}: no frame in common with the fit")
         gsel = [pos[int(result.frames[i])] for i in idx]
-        gj, gk, _ = keypoints_of(kpm, {k: v[gsel] for k, v in gt_params.items()})
-        fj, fk, _ = keypoints_of(kpm, {k: v[idx] for k, v in result.params.items()})
+        gj, gk, gv = keypoints_of(kpm, {k: v[gsel] for k, v in gt_params.items()})
+        fj, fk, fv = keypoints_of(kpm, {k: v[idx] for k, v in result.params.items()})
+        if gt_cameras:
+            rows += E.image_errors(fv, rig, gv, gt_rig, kpm.model.part_labels.cpu().numpy())
         if sim is None:  # no GT cameras: align the whole sequence's body joints
             sim = E.umeyama(fj.reshape(-1, 3), gj.reshape(-1, 3))
         fj, fk = sim.apply(fj), sim.apply(fk)

@@ -112,6 +112,43 @@ def reprojection_px(uv: np.ndarray, kp: np.ndarray) -> float:
     return float(np.linalg.norm(uv[m] - kp[..., :2][m], axis=-1).mean())
 
 
+def _project_np(X: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``X (T,N,3)`` through every camera -> uv (V,T,N,2), depth (V,T,N)."""
+    Xc = np.einsum("vij,tnj->vtni", rig.R, X) + rig.t[:, None, None, :]
+    z = Xc[..., 2]
+    uv = np.einsum("vij,vtnj->vtni", rig.K, Xc)[..., :2] / np.where(z > 1e-9, z, 1e-9)[..., None]
+    return uv, z
+
+
+#: image-error parts: body-model part label -> fit_eval part name
+IMAGE_PARTS = {0: "body", 1: "head", 2: "left_hand", 3: "right_hand"}
+
+
+def image_errors(fit_verts: np.ndarray, fit_rig: Rig, gt_verts: np.ndarray, gt_rig: Rig,
+                 part_labels: np.ndarray) -> list[tuple[str, str, float, str]]:
+    """Where the fitted body lands in the images against the true one: mean pixel distance
+    between the fitted vertices projected by the fitted cameras and the true vertices projected
+    by the true cameras (no alignment: both are in pixels of the same images), over the
+    vertices the true camera sees in its image (in front, inside the frame). This is what
+    an avatar trained on the fit inherits. Vertices (T,N,3) metres; part_labels (N,) of
+    :data:`signsplat.body.joints.PART_NAMES`. Rows ('image_error', part, px, 'px')."""
+    uv_f, _ = _project_np(fit_verts, fit_rig)
+    uv_g, z_g = _project_np(gt_verts, gt_rig)
+    w = np.asarray(gt_rig.width, float)[:, None, None]
+    h = np.asarray(gt_rig.height, float)[:, None, None]
+    seen = (z_g > 1e-6) & (uv_g[..., 0] >= 0) & (uv_g[..., 0] < w) & (uv_g[..., 1] >= 0) & \
+        (uv_g[..., 1] < h)
+    err = np.linalg.norm(uv_f - uv_g, axis=-1)
+
+    def mean(m):
+        return float(err[m].mean()) if m.any() else float("nan")
+
+    rows = [("image_error", "all", mean(seen), "px")]
+    for label, part in IMAGE_PARTS.items():
+        rows.append(("image_error", part, mean(seen & (part_labels == label)[None, None]), "px"))
+    return rows
+
+
 # --- the fit_eval table ---------------------------------------------------------------------
 
 from signsplat.body import joints as J  # noqa: E402
@@ -125,8 +162,10 @@ FIT_EVAL = register_table(Table(
         "mode": "str multiview or singleview",
         "keypoints": "str detected or ground_truth (which 2D keypoints were fitted)",
         "metric": "str mpjpe, pa_mpjpe, reprojection, camera_rotation, camera_centre, jitter, "
+                  "image_error (px between the fitted and the true body in the images), "
                   "scale, seconds, ...",
-        "part": "str body, upper_body, left_hand, right_hand, hands, face, all, cameras",
+        "part": "str body, upper_body, left_hand, right_hand, hands, face, head (image_error), "
+                "all, cameras",
         "value": "float64 the figure (NaN when not measurable)",
         "unit": "str mm, px, deg, m, mm/frame^2, s, 1",
         "seconds_total": "float64 wall-clock seconds of the whole fit",

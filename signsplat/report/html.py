@@ -142,8 +142,10 @@ def perception_section(res: Results) -> Section:
 
 def fit_section(res: Results, assets: Assets) -> Section:
     sec = Section("fit", "3. SMPL-X fitting errors",
-                  "MPJPE / PA-MPJPE per part, reprojection and camera errors; overlays show the "
-                  "fitted mesh and skeleton on the input images.")
+                  "MPJPE / PA-MPJPE per part, reprojection and camera errors, and image_error: "
+                  "how many pixels the fitted body lands from the true one in the images (what "
+                  "an avatar trained on the fit inherits); overlays show the fitted mesh and "
+                  "skeleton on the input images.")
     for name, t in res.scenes.items():
         if t.fit_eval is None:
             continue

@@ -201,3 +201,28 @@ def test_rig_up_direction_of_level_cameras():
     up2 = C.rig_up_direction(rig.R @ Rw.T)
     assert np.allclose(up2, Rw @ np.array([0, 1, 0]), atol=1e-6)
     assert C.rig_up_direction(rig.R[:1]) is None  # one camera: undefined
+
+
+def test_image_errors_are_gauge_free_and_see_only_visible_vertices():
+    """The same body and rig expressed in another world frame lands on the same pixels (0 px);
+    a 1 cm shift of the hand vertices shows up in the hand row only; vertices no camera sees
+    do not count."""
+    gt = _ring(4)
+    rng = np.random.default_rng(0)
+    verts = rng.uniform(-0.3, 0.3, (2, 40, 3)) + np.array([0.0, 1.2, 0.0])  # the rig looks here
+    labels = np.repeat(np.arange(4), 10)
+    sim = _random_similarity(5)
+    inv = E.Similarity(1 / sim.s, sim.R.T, -sim.R.T @ sim.t / sim.s)
+    fit_rig = E.align_rig(gt, inv)
+    fit_verts = inv.apply(verts)
+    rows = {p: v for _, p, v, _ in E.image_errors(fit_verts, fit_rig, verts, gt, labels)}
+    assert set(rows) == {"all", "body", "head", "left_hand", "right_hand"}
+    assert max(rows.values()) < 1e-6
+    moved = verts.copy()
+    moved[:, labels == 2] += np.array([0.01, 0.0, 0.0])
+    rows = {p: v for _, p, v, _ in E.image_errors(moved, gt, verts, gt, labels)}
+    assert rows["left_hand"] > 0.5 and rows["body"] < 1e-9 and rows["right_hand"] < 1e-9
+    far = verts.copy()
+    far[:, labels == 3] += 100.0  # out of every image: not counted, so NaN for that part
+    rows = {p: v for _, p, v, _ in E.image_errors(verts, gt, far, gt, labels)}
+    assert np.isnan(rows["right_hand"]) and rows["all"] < 1e-9

@@ -210,7 +210,8 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
     assert len(cams) == 2 and (cams["frame"] == -1).all()
     ev = read_table(out / "fit_eval.parquet", "fit_eval")
     need = {("mpjpe", "body"), ("pa_mpjpe", "hands"), ("camera_rotation", "cameras"),
-            ("reprojection", "all"), ("jitter", "body"), ("seconds", "all")}
+            ("reprojection", "all"), ("jitter", "body"), ("seconds", "all"),
+            ("image_error", "all"), ("image_error", "right_hand")}
     assert need <= set(zip(ev["metric"], ev["part"]))
     assert (ev["seconds_per_frame"] > 0).all()
     assert len(list((out / "overlays").glob("*.png"))) == 2
