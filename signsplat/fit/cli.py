@@ -143,8 +143,12 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
                       for w, h in zip(rig_cal.width, rig_cal.height)])
     kpm = load_keypoint_model(body, num_betas, num_expression, device)
     mask_arr = None
-    if mode == "multiview" and masks and any(
-            Stage.from_config(s).uses_silhouette for s in sec["stages"]):
+    sil = [s["name"] for s in sec.get("stages", []) if Stage.from_config(s).uses_silhouette]
+    if mode == "multiview" and sil and not masks:
+        raise InputError(f"fit.multiview.stages: stage(s) {sil} weight the silhouette terms and "
+                         "need the person masks: pass --masks (the perception stage's "
+                         "masks.parquet) or set those stages' silhouette weights to 0")
+    if mode == "multiview" and sil:
         mask_arr = D.read_masks(masks, seq_frames, rig_cal.width, rig_cal.height)
         if view is not None:
             mask_arr = mask_arr[view:view + 1]

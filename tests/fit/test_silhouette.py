@@ -203,3 +203,8 @@ def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, c
                                        "groups": ["root"], "silhouette": {"cover": 10}})
     assert main(args + ["--config-json", json.dumps(cfg), "--out-dir", str(tmp_path / "b")]) == 2
     assert "missing_masks.parquet" in capsys.readouterr().err
+    no_masks = [a for a in args if a not in ("--masks", str(tmp_path / "missing_masks.parquet"))]
+    assert main(no_masks + ["--config-json", json.dumps(cfg), "--out-dir",
+                            str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "['sil']" in err and "--masks" in err
