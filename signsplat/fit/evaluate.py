@@ -11,8 +11,9 @@ centroid) per frame; PA- errors use a per-frame similarity (Procrustes) instead.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
-from signsplat.fit.cameras import Rig
+from signsplat.fit.cameras import Rig, project
 from signsplat.geometry.align import Similarity, rotation_angle_deg, umeyama  # noqa: F401
 
 
@@ -112,14 +113,6 @@ def reprojection_px(uv: np.ndarray, kp: np.ndarray) -> float:
     return float(np.linalg.norm(uv[m] - kp[..., :2][m], axis=-1).mean())
 
 
-def _project_np(X: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
-    """Points ``X (T,N,3)`` through every camera -> uv (V,T,N,2), depth (V,T,N)."""
-    Xc = np.einsum("vij,tnj->vtni", rig.R, X) + rig.t[:, None, None, :]
-    z = Xc[..., 2]
-    uv = np.einsum("vij,vtnj->vtni", rig.K, Xc)[..., :2] / np.where(z > 1e-9, z, 1e-9)[..., None]
-    return uv, z
-
-
 #: image-error parts: body-model part label -> fit_eval part name
 IMAGE_PARTS = {0: "body", 1: "head", 2: "left_hand", 3: "right_hand"}
 
@@ -132,8 +125,12 @@ def image_errors(fit_verts: np.ndarray, fit_rig: Rig, gt_verts: np.ndarray, gt_r
     vertices the true camera sees in its image (in front, inside the frame). This is what
     an avatar trained on the fit inherits. Vertices (T,N,3) metres; part_labels (N,) of
     :data:`signsplat.body.joints.PART_NAMES`. Rows ('image_error', part, px, 'px')."""
-    uv_f, _ = _project_np(fit_verts, fit_rig)
-    uv_g, z_g = _project_np(gt_verts, gt_rig)
+    def image(X, rig):
+        uv, z = project(*(torch.as_tensor(np.asarray(a, float)) for a in (X, rig.K, rig.R, rig.t)))
+        return uv.numpy(), z.numpy()
+
+    uv_f, _ = image(fit_verts, fit_rig)
+    uv_g, z_g = image(gt_verts, gt_rig)
     w = np.asarray(gt_rig.width, float)[:, None, None]
     h = np.asarray(gt_rig.height, float)[:, None, None]
     seen = (z_g > 1e-6) & (uv_g[..., 0] >= 0) & (uv_g[..., 0] < w) & (uv_g[..., 1] >= 0) & \

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from signsplat.fit.cameras import project
 from signsplat.geometry.mesh import vertex_normals
 
 
@@ -46,10 +47,6 @@ class SilhouetteTargets:
     valid: torch.Tensor
     width: int
     height: int
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return tuple(self.valid.shape)
 
 
 def mask_contour(mask: np.ndarray, max_points: int) -> np.ndarray:
@@ -95,14 +92,12 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     """
     V = K.shape[0]
     B = verts.shape[0]
+    T = targets.valid.shape[1]
     H, W = targets.height, targets.width
-    Xc = torch.einsum("vij,bnj->vbni", R, verts) + t[:, None, None, :]
-    z = Xc[..., 2]
+    uv, z = project(verts, K, R, t)  # (V,B,N,2), (V,B,N)
     front = z > near
-    zs = torch.where(front, z, torch.ones_like(z))
-    uv = torch.einsum("vij,vbnj->vbni", K, Xc)[..., :2] / zs[..., None]  # (V,B,N,2)
     valid = targets.valid[:, frames]  # (V,B)
-    rows = (torch.arange(V, device=verts.device)[:, None] * targets.valid.shape[1]
+    rows = (torch.arange(V, device=verts.device)[:, None] * T
             + frames[None].to(verts.device)).reshape(-1)
     grid = torch.stack([uv[..., 0] / (W - 1), uv[..., 1] / (H - 1)], -1) * 2 - 1
     grid = torch.nan_to_num(grid, nan=2.0, posinf=2.0, neginf=-2.0).clamp(-2, 2)
@@ -125,7 +120,7 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     frames_np = frames.cpu().numpy()
     for v in range(V):
         for b in range(B):
-            c = targets.contours[v * targets.valid.shape[1] + int(frames_np[b])]
+            c = targets.contours[v * T + int(frames_np[b])]
             ids = np.nonzero(rim_np[v, b])[0]
             if len(c) == 0 or len(ids) == 0:
                 continue

@@ -311,8 +311,8 @@ def ablation_section(res: Results, assets: Assets) -> Section:
                   "Same scene, split and seed; the full model is the demo profile plus the "
                   "config's ablations.base with every switch on (the demo itself leaves "
                   "regularisation off), and each other row turns one switch off. Scores: "
-                  "held-out frames (novel pose), background replaced, no test-time refinement. Training seconds from the "
-                  "Snakemake benchmark files.")
+                  "held-out frames (novel pose), background replaced, no test-time refinement. "
+                  "Training seconds from the Snakemake benchmark files.")
     for name, t in res.scenes.items():
         if t.ablations is None or not len(t.ablations):
             continue
