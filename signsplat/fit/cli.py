@@ -86,6 +86,31 @@ def choose_mode(cfg: dict, num_views: int) -> str:
     return mode
 
 
+def calibrated_extrinsics(calibration: str | os.PathLike | None, view: int | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(R (V,3,3), t (V,3)) of a calibrated rig's cameras table, for ``camera_init:
+    calibrated``; an InputError names the file when it has no usable extrinsics."""
+    if not calibration:
+        raise InputError("fit.multiview.camera_init: calibrated needs the calibrated cameras: "
+                         "pass --calibration (a cameras table with R and t), or choose "
+                         "camera_init auto, pnp or rig_prior")
+    rig, _ = D.read_rig(calibration, with_extrinsics=True)
+    ortho = np.abs(np.einsum("vij,vkj->vik", rig.R, rig.R) - np.eye(3)).max(axis=(1, 2))
+    bad = np.nonzero((ortho > 1e-4) | (np.linalg.det(rig.R) < 0))[0]
+    if len(bad):
+        raise InputError(f"{calibration}: camera(s) {bad.tolist()} have an R that is not a "
+                         "rotation (world-to-camera, det +1); fit.multiview.camera_init "
+                         "calibrated uses R and t as they are")
+    centres = -np.einsum("vji,vj->vi", rig.R, rig.t)
+    if rig.num_views > 1 and np.ptp(centres, axis=0).max() < 1e-6:
+        raise InputError(f"{calibration}: every camera sits at the same place - the table has "
+                         "no calibrated extrinsics; choose fit.multiview.camera_init auto, pnp "
+                         "or rig_prior")
+    if view is not None:
+        return rig.R[view:view + 1], rig.t[view:view + 1]
+    return rig.R, rig.t
+
+
 def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathLike | None,
             body: str | os.PathLike, *, frames: str | os.PathLike | None = None,
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
@@ -152,10 +177,13 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
         mask_arr = D.read_masks(masks, seq_frames, rig_cal.width, rig_cal.height)
         if view is not None:
             mask_arr = mask_arr[view:view + 1]
+    extrinsics = None
+    if mode == "multiview" and sec.get("camera_init") == "calibrated":
+        extrinsics = calibrated_extrinsics(calibration, view)
     try:
         if mode == "multiview":
             result = fit_multiview(kpm, obs, seq_frames, K, rig_cal.width, rig_cal.height, cfg,
-                                   device=device, masks=mask_arr)
+                                   device=device, masks=mask_arr, extrinsics=extrinsics)
         else:
             result = fit_singleview(kpm, obs[0], seq_frames, K[0], int(rig_cal.width[0]),
                                     int(rig_cal.height[0]), cfg, device=device)
@@ -343,6 +371,7 @@ def fit(argv: list[str]) -> int:
     meta = {"hand_mean": HAND_MEAN, "body_model": str(args.body), "mode": mode,
             "keypoints": args.keypoints_source, "world_frame":
             "camera frame" if mode == "singleview" else
+            "calibration (cameras held fixed)" if result.log.get("reference_view") == -1 else
             f"reference camera {result.log.get('reference_view')} held at its PnP pose "
             "(body-anchored)"}
     D.write_outputs(out_dir, D.smplx_table(result.params, scene, result.frames,

@@ -10,6 +10,9 @@
    which removes the 6-DoF world-frame freedom. Scale: with free extrinsics a uniform body
    scale is unobservable (the proxy's beta 0 is one), so the shape prior sets it; the
    evaluation's similarity alignment absorbs it.
+   With ``camera_init: calibrated`` (a calibrated studio) the calibration table's extrinsics
+   are used and held fixed instead (the calibration's world frame; no camera is solved), and
+   the body starts where the head/torso keypoints triangulate (:func:`initial_root`).
 3. Stages (config ``fit.multiview.stages``) run with Adam: first per chunk of frames, each chunk
    warm-started from the previous chunk's last frame (cameras fixed), then jointly over the
    whole sequence with betas and the free cameras; the final joint stage is Levenberg-Marquardt
@@ -21,6 +24,7 @@ from __future__ import annotations
 import logging
 import time
 
+import cv2
 import numpy as np
 import torch
 
@@ -28,7 +32,7 @@ from signsplat.body import joints as J
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
-                                   rig_prior, rig_up_direction)
+                                   rig_prior, rig_up_direction, triangulate)
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 
@@ -224,16 +228,55 @@ def _choose_by_consistency(cands, obs, K, R, t, status, frames, prior_margin=1.0
     return R, t, status
 
 
+def initial_root(kpm: KeypointModel, rig: Rig, obs: np.ndarray, T: int, dtype=torch.float32,
+                 device: torch.device | str = "cpu", frames: int = 10) -> dict[str, np.ndarray]:
+    """``global_orient`` and ``transl`` (T,3) placing the neutral body on the head/torso
+    keypoints triangulated by a calibrated rig (median over the first ``frames`` frames that
+    see them): the rigid (Kabsch) fit of the neutral body's keypoints to those points. Fewer
+    than 3 triangulated points leave the body at the origin, unrotated."""
+    with torch.no_grad():
+        j, kp, _ = kpm(transl=torch.zeros(1, 3, dtype=dtype, device=device))
+    pelvis = j[0, 0].double().cpu().numpy()
+    kp0 = kp[0].double().cpu().numpy()
+    idx = np.asarray(PNP_KEYPOINTS)
+    P = np.einsum("vij,vjk->vik", rig.K, np.concatenate([rig.R, rig.t[:, :, None]], axis=2))
+    seen = np.nonzero((obs[:, :, idx, 2] > 0).sum((0, 2)) > 0)[0][:frames]
+    pts = []
+    for f in seen:
+        o = obs[:, f][:, idx]
+        X, ok = triangulate(P, o[..., :2], o[..., 2])
+        pts.append(np.where(ok[:, None], X, np.nan))
+    zero = {"global_orient": np.zeros((T, 3)), "transl": np.zeros((T, 3))}
+    if not pts:
+        return zero
+    with np.errstate(all="ignore"):
+        X = np.nanmedian(np.stack(pts), axis=0)
+    ok = np.isfinite(X).all(1)
+    if ok.sum() < 3:
+        return zero
+    a, b = kp0[idx][ok], X[ok]
+    ca, cb = a.mean(0), b.mean(0)
+    u, _, vt = np.linalg.svd((b - cb).T @ (a - ca))
+    R = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    t = cb - R @ ca
+    # SMPL-X rotates about the pelvis: posed = R (x - pelvis) + pelvis + transl
+    transl = t + R @ pelvis - pelvis
+    rotvec = cv2.Rodrigues(R)[0].reshape(3)
+    return {"global_orient": np.tile(rotvec, (T, 1)), "transl": np.tile(transl, (T, 1))}
+
+
 def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   width, height, cfg: dict, device: torch.device | str = "cpu",
-                  dtype=torch.float32, masks: np.ndarray | None = None) -> seq.FitResult:
+                  dtype=torch.float32, masks: np.ndarray | None = None,
+                  extrinsics: tuple[np.ndarray, np.ndarray] | None = None) -> seq.FitResult:
     """Fit SMPL-X + cameras to cleaned observations.
 
     kpm: keypoint model; obs (V,T,133,3) pixels + confidence (0 = ignore, no NaN);
     frames (T,) frame numbers; K (V,3,3) intrinsics (calibrated or approximate); width/height
     (V,) pixels; cfg: the validated ``fit`` config section (``cfg['multiview']`` for this mode);
     masks (V,T,H,W) bool person masks for the stages with silhouette weights (a stage with
-    such weights and no masks raises ValueError).
+    such weights and no masks raises ValueError); extrinsics (R (V,3,3), t (V,3)) of a calibrated
+    rig, used (and held fixed) with ``camera_init: calibrated``.
     """
     t0 = time.perf_counter()
     mv = cfg["multiview"]
@@ -242,23 +285,40 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     if not fitted.any():
         raise ValueError("no frame has enough keypoints to fit")
     kp0 = neutral_keypoints(kpm, dtype, device)
-    rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
     views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
-    ok = ("pnp",) if mv.get("camera_init") == "pnp" else ("pnp", "pnp_ransac", "prior")
-    solved = [v for v in range(V) if status[v] in ok]
-    if not solved:
-        raise ValueError("no camera could be initialised: too few head/torso keypoints in "
-                         "every view's first frames")
-    ref = max(solved, key=lambda v: views_obs[v])
-    no_det = [v for v in range(V) if status[v] == "no_detections"]
-    cams = CameraParams(rig0, fixed=[ref] + no_det, refine_focal=mv["refine_focal"],
-                        dtype=dtype, device=device)
+    init = {"body_pose": rest_body_pose(cfg, T)}
+    if mv.get("camera_init") == "calibrated":
+        if extrinsics is None:
+            raise ValueError("camera_init calibrated needs the calibrated extrinsics")
+        rig0 = Rig(K=np.asarray(K, float), R=np.asarray(extrinsics[0], float),
+                   t=np.asarray(extrinsics[1], float), width=np.asarray(width),
+                   height=np.asarray(height))
+        status = ["calibrated"] * V
+        solved = list(range(V))
+        rms = np.full(V, np.nan)
+        ref = -1  # no reference camera: the calibration fixes the world frame
+        cams = CameraParams(rig0, fixed=list(range(V)), refine_focal=False, dtype=dtype,
+                            device=device)
+        init.update(initial_root(kpm, rig0, obs, T, dtype, device))
+        log.info("cameras: calibrated extrinsics, held fixed; body placed at %s m",
+                 np.round(init["transl"][0], 3).tolist())
+    else:
+        rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
+        ok = ("pnp",) if mv.get("camera_init") == "pnp" else ("pnp", "pnp_ransac", "prior")
+        solved = [v for v in range(V) if status[v] in ok]
+        if not solved:
+            raise ValueError("no camera could be initialised: too few head/torso keypoints in "
+                             "every view's first frames")
+        ref = max(solved, key=lambda v: views_obs[v])
+        no_det = [v for v in range(V) if status[v] == "no_detections"]
+        cams = CameraParams(rig0, fixed=[ref] + no_det, refine_focal=mv["refine_focal"],
+                            dtype=dtype, device=device)
+        log.info("cameras initialised: %s (reference view %d, PnP rms px %s)", status, ref,
+                 np.round(rms, 2).tolist())
     t_init = time.perf_counter()
-    log.info("cameras initialised: %s (reference view %d, PnP rms px %s)", status, ref,
-             np.round(rms, 2).tolist())
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
-                       device=device, init={"body_pose": rest_body_pose(cfg, T)})
+                       device=device, init=init)
     solved_R = rig0.R[solved]
     up = rig_up_direction(solved_R) if mv["level_cameras"] else None
     log.info("world vertical for the upright prior: %s",

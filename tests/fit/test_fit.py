@@ -416,3 +416,76 @@ def test_confidence_power_reweights_kept_keypoints_only(kpm):
     np.testing.assert_allclose(cubed[..., 2][kept], base[..., 2][kept] ** 3, rtol=1e-6)
     assert (cubed[..., 2][~kept] == 0).all()
     np.testing.assert_array_equal(cubed[..., :2], base[..., :2])
+
+
+def _moved_rig(rig, angle_deg: float, shift):
+    """The same rig seen from a world rotated by ``angle_deg`` about y and shifted: a
+    calibration whose world frame is not the body-anchored one."""
+    import cv2
+
+    Rw = cv2.Rodrigues(np.array([0.0, np.radians(angle_deg), 0.0]))[0]
+    # world point x' = Rw x + shift  ->  camera: R Rw^T (x' - shift) + t
+    R = rig.R @ Rw.T
+    t = rig.t - np.einsum("vij,j->vi", R, np.asarray(shift, float))
+    return type(rig)(K=rig.K, R=R, t=t, width=rig.width, height=rig.height), Rw
+
+
+def test_calibrated_cameras_stay_fixed_and_the_body_is_placed_from_them(kpm):
+    from signsplat.fit.multiview import initial_root
+
+    T, V = 3, 4
+    gt = random_motion(T, seed=2)
+    rig, Rw = _moved_rig(synthetic_rig(V, arc=120), 40.0, [0.4, -0.1, 0.7])
+    # the true body in the calibration's world: rotated and shifted with it
+    import cv2
+    moved = dict(gt)
+    pelvis = keypoints_of(kpm, {k: v[:1] for k, v in gt.items()})[0][0, 0]
+    rots = [cv2.Rodrigues(Rw @ cv2.Rodrigues(g)[0])[0].reshape(3) for g in gt["global_orient"]]
+    moved["global_orient"] = np.stack(rots)
+    # posed = R (x - p) + p + transl with the pelvis p of the shaped rest body
+    moved["transl"] = (gt["transl"] + pelvis) @ Rw.T + np.array([0.4, -0.1, 0.7]) - pelvis
+    obs = observe(kpm, moved, rig)
+    init = initial_root(kpm, rig, obs, T)
+    assert np.linalg.norm(init["transl"][0] - moved["transl"][0]) < 0.1  # betas are unknown
+    ang = np.degrees(np.linalg.norm(cv2.Rodrigues(
+        cv2.Rodrigues(init["global_orient"][0])[0].T
+        @ cv2.Rodrigues(moved["global_orient"][0])[0])[0]))
+    assert ang < 10.0
+    cfg = _cfg(json.loads(json.dumps(FAST_MV)) | {})
+    cfg["multiview"]["camera_init"] = "calibrated"
+    res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg,
+                        extrinsics=(rig.R, rig.t))
+    assert res.camera_status == ["calibrated"] * V and res.log["reference_view"] == -1
+    np.testing.assert_allclose(res.rig.R, rig.R, atol=1e-6)
+    np.testing.assert_allclose(res.rig.t, rig.t, atol=1e-6)
+    # no gauge alignment: the fit lives in the calibration's world
+    err = _upper_mpjpe(kpm, res.params, moved)
+    assert err[("mpjpe", "upper_body")] < 30.0
+    with pytest.raises(ValueError, match="calibrated"):
+        fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
+
+
+def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, body_path, capsys):
+    d = _write_inputs(tmp_path, kpm)
+    cfg = json.loads(json.dumps(FAST_MV))
+    cfg["multiview"]["camera_init"] = "calibrated"
+    for st in cfg["multiview"]["stages"]:
+        st["iterations"] = 2
+    base = ["fit", "--config-json", json.dumps(cfg), "--keypoints", str(d / "kp.parquet"),
+            "--frames", str(d / "frames.parquet"), "--body", str(body_path)]
+    assert main(base + ["--out-dir", str(d / "nocal")]) == 2
+    assert "--calibration" in capsys.readouterr().err
+    cams = read_table(d / "cameras.parquet", "cameras")
+    for name, change in (("same", lambda c: c.assign(t=[np.zeros(3)] * len(c),
+                                                    R=[np.eye(3).reshape(9)] * len(c))),
+                         ("skew", lambda c: c.assign(R=[2 * np.eye(3).reshape(9)] * len(c)))):
+        write_table(change(cams), d / f"{name}.parquet", "cameras")
+        code = main(base + ["--calibration", str(d / f"{name}.parquet"), "--out-dir",
+                            str(d / name)])
+        err = capsys.readouterr().err
+        assert code == 2 and f"{name}.parquet" in err
+        assert not (d / name / "smplx_fit.parquet").exists()
+    assert main(base + ["--calibration", str(d / "cameras.parquet"), "--out-dir",
+                        str(d / "ok")]) == 0
+    out = read_table(d / "ok" / "cameras_fit.parquet", "cameras")
+    np.testing.assert_allclose(np.stack(out["R"]), np.stack(cams["R"]), atol=1e-6)
