@@ -217,3 +217,28 @@ def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path):
     text = out.read_text(errors="replace")
     for words in ("Accuracy versus time", "Stitched video", "Pareto front"):
         assert words in text, words
+
+
+def test_dry_run_passes_a_footage_calibration_to_the_fit(tmp_path):
+    """Footage with a calibration file: the fit gets the extracted cameras table (intrinsics,
+    and extrinsics with camera_init calibrated); footage without one gets none."""
+    sheet = tmp_path / "sequences.tsv"
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("views: []\n")
+    sheet.write_text("sequence\tsource\tcameras\tcalibration\n"
+                     f"withcal\tvideo\t{tmp_path}/a.mp4;{tmp_path}/b.mp4\t{calib}\n"
+                     f"nocal\tvideo\t{tmp_path}/a.mp4;{tmp_path}/b.mp4\t\n")
+    cfg = tmp_path / "config.yaml"
+    cfg.write_text(yaml.safe_dump({"results": str(tmp_path / "r"), "sequences": str(sheet),
+                                   "scenes": []}))
+    res = snakemake(str(tmp_path / "r" / "withcal" / "fit" / "smplx_fit.parquet"),
+                    str(tmp_path / "r" / "nocal" / "fit" / "smplx_fit.parquet"),
+                    "-n", "-p", "--configfile", str(cfg))
+    assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
+    fits = [line for line in res.stdout.splitlines() if " -m signsplat fit " in line]
+    assert len(fits) == 2
+    with_cal = [f for f in fits if "/withcal/" in f]
+    no_cal = [f for f in fits if "/nocal/" in f]
+    assert re.search(r"--calibration'? '?" + re.escape(f"{tmp_path}/r/withcal/frames/cameras.parquet"),
+                     with_cal[0]), with_cal[0][-300:]
+    assert "--calibration" not in no_cal[0]

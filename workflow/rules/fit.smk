@@ -41,6 +41,11 @@ def fit_extra_args(wildcards, input):
     if "calibration" in input.keys():
         args += ["--calibration", input.calibration, "--gt-cameras", input.calibration,
                  "--gt-smplx", input.gt_smplx]
+    elif VIDEOS.get(wildcards.scene, {}).get("calibration"):
+        # footage with a calibration file: extract_frames writes cameras.parquet before
+        # frames.parquet (an input), so it exists; intrinsics, and with camera_init
+        # calibrated the extrinsics too
+        args += ["--calibration", f"{RESULTS}/{wildcards.scene}/frames/cameras.parquet"]
     return " ".join(f"'{a}'" for a in args)
 
 
