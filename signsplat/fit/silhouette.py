@@ -82,13 +82,90 @@ def targets_from_masks(masks: np.ndarray, max_contour_points: int = 300,
                              torch.as_tensor(valid.reshape(V, T), device=device), W, H)
 
 
+@dataclass
+class ContourMatches:
+    """Which body vertex each mask contour pixel is matched to (see :func:`match_contours`):
+    ``view``, ``batch``, ``vertex`` (M,) int64 and ``pixel`` (M,2) of the contour pixels, for
+    the frames ``frames`` (B,) of the targets."""
+
+    view: torch.Tensor
+    batch: torch.Tensor
+    vertex: torch.Tensor
+    pixel: torch.Tensor
+    frames: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.vertex.shape[0])
+
+
+@dataclass
+class MatchCache:
+    """Contour matches kept over several evaluations (ICP-style): re-matched every ``every``
+    calls of :func:`silhouette_terms`, or at once when the frames change. One per stage run."""
+
+    every: int = 1
+    matches: ContourMatches | None = None
+    age: int = 0
+
+    def current(self, frames: torch.Tensor) -> ContourMatches | None:
+        m = self.matches
+        if m is None or self.age >= self.every or not np.array_equal(
+                m.frames, frames.cpu().numpy()):
+            return None
+        return m
+
+
+def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+                   uv: torch.Tensor, front: torch.Tensor, targets: SilhouetteTargets,
+                   frames: torch.Tensor, rim_cos: float = 0.25) -> ContourMatches:
+    """Nearest rim vertex of every contour pixel, per (view, frame), without gradient.
+
+    ``uv (V,B,N,2)`` and ``front (V,B,N)`` are the vertices' projections; rim vertices have a
+    normal at most ``rim_cos`` off perpendicular to the viewing ray (one k-d tree per image).
+    """
+    V, B = uv.shape[:2]
+    T = targets.valid.shape[1]
+    with torch.no_grad():
+        n = vertex_normals(verts.detach(), faces.long())
+        centres = -torch.einsum("vji,vj->vi", R.detach(), t.detach())  # (V,3)
+        ray = torch.nn.functional.normalize(verts.detach()[None] - centres[:, None, None], dim=-1)
+        rim = ((n[None] * ray).sum(-1).abs() < rim_cos) & front  # (V,B,N)
+        uv_np = uv.detach().cpu().double().numpy()
+        rim_np = rim.cpu().numpy()
+    sel_v, sel_b, sel_n, pts = [], [], [], []
+    frames_np = frames.cpu().numpy()
+    for v in range(V):
+        for b in range(B):
+            c = targets.contours[v * T + int(frames_np[b])]
+            ids = np.nonzero(rim_np[v, b])[0]
+            if len(c) == 0 or len(ids) == 0:
+                continue
+            _, j = cKDTree(uv_np[v, b, ids]).query(c)
+            sel_v.append(np.full(len(c), v))
+            sel_b.append(np.full(len(c), b))
+            sel_n.append(ids[j])
+            pts.append(c)
+    dev = verts.device
+    if not pts:
+        empty = torch.zeros(0, dtype=torch.int64, device=dev)
+        return ContourMatches(empty, empty, empty, verts.new_zeros((0, 2)), frames_np.copy())
+    return ContourMatches(
+        torch.as_tensor(np.concatenate(sel_v), device=dev),
+        torch.as_tensor(np.concatenate(sel_b), device=dev),
+        torch.as_tensor(np.concatenate(sel_n), device=dev),
+        torch.as_tensor(np.concatenate(pts), dtype=verts.dtype, device=dev), frames_np.copy())
+
+
 def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
                      t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
-                     clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
+                     clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05,
+                     cache: MatchCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """(inside, cover) of ``verts (B,N,3)`` world metres, frames ``frames (B,)`` of the targets.
 
     K, R, t (V,...) cameras. Vertices at or behind the ``near`` plane are ignored by both terms.
+    ``cache``: reuse the contour matches of earlier calls (:class:`MatchCache`); None matches
+    every call. The cover term's gradient flows through the matched vertices either way.
     """
     V = K.shape[0]
     B = verts.shape[0]
@@ -109,32 +186,16 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     w = (in_image & valid[..., None]).to(d.dtype)
     inside = ((d.clamp(max=clamp_px) ** 2 * w).sum(-1) / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
 
-    with torch.no_grad():
-        n = vertex_normals(verts, faces.long())
-        centres = -torch.einsum("vji,vj->vi", R, t)  # (V,3)
-        ray = torch.nn.functional.normalize(verts[None] - centres[:, None, None], dim=-1)
-        rim = ((n[None] * ray).sum(-1).abs() < rim_cos) & front  # (V,B,N)
-        uv_np = uv.detach().cpu().double().numpy()
-        rim_np = rim.cpu().numpy()
-    sel_v, sel_b, sel_n, pts = [], [], [], []
-    frames_np = frames.cpu().numpy()
-    for v in range(V):
-        for b in range(B):
-            c = targets.contours[v * T + int(frames_np[b])]
-            ids = np.nonzero(rim_np[v, b])[0]
-            if len(c) == 0 or len(ids) == 0:
-                continue
-            _, j = cKDTree(uv_np[v, b, ids]).query(c)
-            sel_v.append(np.full(len(c), v))
-            sel_b.append(np.full(len(c), b))
-            sel_n.append(ids[j])
-            pts.append(c)
-    if not pts:
+    matches = None if cache is None else cache.current(frames)
+    if matches is None:
+        matches = match_contours(verts, faces, R, t, uv, front, targets, frames, rim_cos)
+        if cache is not None:
+            cache.matches, cache.age = matches, 0
+    if cache is not None:
+        cache.age += 1
+    if matches.count == 0:
         return inside, verts.new_zeros(())
-    iv = torch.as_tensor(np.concatenate(sel_v), device=verts.device)
-    ib = torch.as_tensor(np.concatenate(sel_b), device=verts.device)
-    idx = torch.as_tensor(np.concatenate(sel_n), device=verts.device)
-    p = torch.as_tensor(np.concatenate(pts), dtype=verts.dtype, device=verts.device)
+    iv, ib, idx, p = matches.view, matches.batch, matches.vertex, matches.pixel
     dist2 = ((uv[iv, ib, idx] - p) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     key = iv * B + ib
     per = verts.new_zeros(V * B).index_add_(0, key, dist2)

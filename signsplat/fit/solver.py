@@ -21,6 +21,7 @@ from signsplat.fit import objective as obj
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams
 from signsplat.fit.silhouette import (
+    MatchCache,
     SilhouetteTargets,
     silhouette_terms,
     targets_from_masks,
@@ -52,6 +53,8 @@ class Stage:
     #: weights of the mask terms (signsplat.fit.silhouette): {"inside": w, "cover": w} in
     #: px^-2; both 0 (the default) = the masks are not used and nothing is computed
     silhouette: dict[str, float] = field(default_factory=dict)
+    #: Adam steps between two contour matchings of the cover term (1 = every step)
+    rematch_every: int = 1
 
     def __post_init__(self):
         bad = set(self.silhouette) - set(SILHOUETTE_TERMS)
@@ -78,7 +81,8 @@ class Stage:
                    lr_scale=dict(cfg.get("lr_scale", {})), smooth=bool(cfg.get("smooth", True)),
                    final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)),
                    sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"),
-                   silhouette=dict(cfg.get("silhouette", {})))
+                   silhouette=dict(cfg.get("silhouette", {})),
+                   rematch_every=int(cfg.get("rematch_every", 1)))
 
 
 @dataclass
@@ -149,8 +153,10 @@ def _pose_vector(params: FitParams, sel) -> torch.Tensor:
 
 
 def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
-               sel: slice = slice(None)) -> dict[str, torch.Tensor]:
-    """All loss terms of the frames ``sel`` (a slice of the sequence)."""
+               sel: slice = slice(None), matches: MatchCache | None = None
+               ) -> dict[str, torch.Tensor]:
+    """All loss terms of the frames ``sel`` (a slice of the sequence). ``matches``: the
+    stage run's contour-match cache of the silhouette terms (None: re-match every call)."""
     w = problem.weights
     dev, dt = params.transl.device, params.transl.dtype
     inputs = params.model_inputs(sel)
@@ -181,7 +187,7 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     if sil:
         frames = torch.arange(problem.obs.shape[1], device=dev)[sel]
         inside, cover = silhouette_terms(body.vertices, problem.kpm.model.faces, K, R, t,
-                                         problem.silhouette, frames)
+                                         problem.silhouette, frames, cache=matches)
         terms["silhouette_inside"] = float(stage.silhouette.get("inside", 0.0)) * inside
         terms["silhouette_cover"] = float(stage.silhouette.get("cover", 0.0)) * cover
     return terms
@@ -235,6 +241,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     opt = torch.optim.Adam(groups)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
+    cache = MatchCache(stage.rematch_every)
     for it in range(stage.iterations):
         frac = it / max(stage.iterations - 1, 1)
         scale = stage.final_lr_fraction + (1 - stage.final_lr_fraction) * 0.5 * (
@@ -242,7 +249,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
         for g, b in zip(opt.param_groups, base):
             g["lr"] = b * scale
         opt.zero_grad(set_to_none=True)
-        terms = loss_terms(problem, params, cams, stage, sel)
+        terms = loss_terms(problem, params, cams, stage, sel, cache)
         loss = sum(terms.values())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss at iteration {it} "
@@ -279,7 +286,7 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
 
     def closure():
         opt.zero_grad(set_to_none=True)
-        terms = loss_terms(problem, params, cams, stage, sel)
+        terms = loss_terms(problem, params, cams, stage, sel, cache)
         loss = sum(terms.values())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss")

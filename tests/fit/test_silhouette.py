@@ -14,7 +14,8 @@ from signsplat.errors import InputError
 from signsplat.fit import data as D
 from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams
-from signsplat.fit.silhouette import mask_contour, silhouette_terms, targets_from_masks
+from signsplat.fit.silhouette import (MatchCache, mask_contour, silhouette_terms,
+                                      targets_from_masks)
 from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
 
 
@@ -87,6 +88,35 @@ def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
     (inside + cover).backward()
     # the gradient points away from the truth: a small step against it reduces the shift
     assert float(shift.grad @ shift.detach()) > 0
+
+
+def test_match_cache_reuses_matches_until_it_is_due(kpm):
+    T, V = 2, 3
+    gt = random_motion(T, seed=3)
+    rig = synthetic_rig(V, arc=120)
+    tg = targets_from_masks(_render_masks(kpm, gt, rig))
+    verts = _vertices(kpm, gt)
+    K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
+    frames = torch.arange(T)
+    faces = kpm.model.faces
+    moved = verts + torch.tensor([0.03, -0.02, 0.0])
+    cache = MatchCache(every=2)
+    first = silhouette_terms(verts, faces, K, R, t, tg, frames, cache=cache)
+    assert [float(a) for a in first] == [float(a) for a in
+                                         silhouette_terms(verts, faces, K, R, t, tg, frames)]
+    kept = cache.matches
+    # second call: the matches of the truth are kept for the moved body
+    _, cover_kept = silhouette_terms(moved, faces, K, R, t, tg, frames, cache=cache)
+    assert cache.matches is kept
+    _, cover_fresh = silhouette_terms(moved, faces, K, R, t, tg, frames)
+    assert float(cover_kept) != float(cover_fresh)
+    # third call: due, re-matched - the same as a fresh matching
+    _, cover_third = silhouette_terms(moved, faces, K, R, t, tg, frames, cache=cache)
+    assert cache.matches is not kept and float(cover_third) == float(cover_fresh)
+    # other frames are re-matched at once
+    kept = cache.matches
+    silhouette_terms(moved[:1], faces, K, R, t, tg, frames[:1], cache=cache)
+    assert cache.matches is not kept and cache.matches.frames.tolist() == [0]
 
 
 def test_hard_cases_stay_finite(kpm):
