@@ -36,6 +36,16 @@ def fit_inputs(wildcards):
     return files
 
 
+def fit_config(wildcards):
+    """The fit section without the other mode's settings: a change to the multi-view stages
+    does not re-run the single-view fits, nor the other way round."""
+    mode = FIT_CFG.get("mode", "auto")
+    if mode == "auto":
+        mode = "multiview" if num_views(wildcards.scene) > 1 else "singleview"
+    other = {"multiview": "singleview", "singleview": "multiview"}[mode]
+    return as_json({k: v for k, v in FIT_CFG.items() if k != other})
+
+
 def fit_extra_args(wildcards, input):
     args = []
     if "calibration" in input.keys():
@@ -59,7 +69,7 @@ rule fit_smplx:
         log_json=f"{RESULTS}/{{scene}}/fit/fit_log.json",
         overlays=directory(f"{RESULTS}/{{scene}}/fit/overlays"),
     params:
-        cfg=as_json(FIT_CFG),
+        cfg=fit_config,
         extra=fit_extra_args,
         source=FIT_CFG.get("keypoints", "detected"),
         betas=config["body_model"]["num_betas"],
