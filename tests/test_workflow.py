@@ -242,3 +242,5 @@ def test_dry_run_passes_a_footage_calibration_to_the_fit(tmp_path):
     assert re.search(r"--calibration'? '?" + re.escape(f"{tmp_path}/r/withcal/frames/cameras.parquet"),
                      with_cal[0]), with_cal[0][-300:]
     assert "--calibration" not in no_cal[0]
+    # a multi-view fit's params carry no single-view settings (changing those re-runs nothing)
+    assert all('"multiview"' in f and '"singleview"' not in f for f in fits)
