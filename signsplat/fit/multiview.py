@@ -284,7 +284,6 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     fitted, count = seq.fitted_mask(obs, cfg["min_keypoints"])
     if not fitted.any():
         raise ValueError("no frame has enough keypoints to fit")
-    kp0 = neutral_keypoints(kpm, dtype, device)
     views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
     init = {"body_pose": rest_body_pose(cfg, T)}
     if mv.get("camera_init") == "calibrated":
@@ -303,6 +302,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         log.info("cameras: calibrated extrinsics, held fixed; body placed at %s m",
                  np.round(init["transl"][0], 3).tolist())
     else:
+        kp0 = neutral_keypoints(kpm, dtype, device)
         rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
         ok = ("pnp",) if mv.get("camera_init") == "pnp" else ("pnp", "pnp_ransac", "prior")
         solved = [v for v in range(V) if status[v] in ok]
