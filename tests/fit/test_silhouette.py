@@ -70,14 +70,17 @@ def test_contour_and_targets():
         targets_from_masks(np.zeros((8, 8), bool))
 
 
-def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
+def _three_view_scene(kpm):
+    """Two frames of a known motion seen by three cameras: targets from rendered masks."""
     T, V = 2, 3
     gt = random_motion(T, seed=3)
     rig = synthetic_rig(V, arc=120)
     tg = targets_from_masks(_render_masks(kpm, gt, rig))
-    verts = _vertices(kpm, gt)
-    K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
-    frames = torch.arange(T)
+    return _vertices(kpm, gt), _t(rig.K), _t(rig.R), _t(rig.t), tg, torch.arange(T), V
+
+
+def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
+    verts, K, R, t, tg, frames, V = _three_view_scene(kpm)
     inside0, cover0 = silhouette_terms(verts, kpm.model.faces, K, R, t, tg, frames)
     shift = torch.tensor([0.03, -0.02, 0.0], requires_grad=True)
     inside, cover = silhouette_terms(verts + shift, kpm.model.faces, K, R, t, tg, frames)
@@ -91,13 +94,7 @@ def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
 
 
 def test_match_cache_reuses_matches_until_it_is_due(kpm):
-    T, V = 2, 3
-    gt = random_motion(T, seed=3)
-    rig = synthetic_rig(V, arc=120)
-    tg = targets_from_masks(_render_masks(kpm, gt, rig))
-    verts = _vertices(kpm, gt)
-    K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
-    frames = torch.arange(T)
+    verts, K, R, t, tg, frames, _ = _three_view_scene(kpm)
     faces = kpm.model.faces
     moved = verts + torch.tensor([0.03, -0.02, 0.0])
     cache = MatchCache(every=2)
