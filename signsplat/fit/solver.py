@@ -70,7 +70,7 @@ class Stage:
         return any(float(v) > 0 for v in self.silhouette.values())
 
     @classmethod
-    def from_config(cls, cfg: dict) -> "Stage":
+    def from_config(cls, cfg: dict) -> Stage:
         groups = tuple(cfg["groups"])
         bad = set(groups) - set(GROUPS)
         if bad:
@@ -286,7 +286,7 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
 
     def closure():
         opt.zero_grad(set_to_none=True)
-        terms = loss_terms(problem, params, cams, stage, sel, cache)
+        terms = loss_terms(problem, params, cams, stage, sel)
         loss = sum(terms.values())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss")

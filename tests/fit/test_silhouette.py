@@ -14,8 +14,12 @@ from signsplat.errors import InputError
 from signsplat.fit import data as D
 from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams
-from signsplat.fit.silhouette import (MatchCache, mask_contour, silhouette_terms,
-                                      targets_from_masks)
+from signsplat.fit.silhouette import (
+    MatchCache,
+    mask_contour,
+    silhouette_terms,
+    targets_from_masks,
+)
 from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
 
 
@@ -140,9 +144,15 @@ def test_hard_cases_stay_finite(kpm):
     assert float(inside) == 0.0 and float(cover) == 0.0
 
 
-def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm):
+@pytest.mark.parametrize("solver", [
+    {"optimizer": "adam", "iterations": 60, "lr": 0.002},
+    {"optimizer": "adam", "iterations": 60, "lr": 0.002, "rematch_every": 5},
+    {"optimizer": "lbfgs", "iterations": 15, "lr": 1.0},
+], ids=["adam", "adam_rematch5", "lbfgs"])
+def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
     """Keypoints weighted 0: the masks alone move a body started 3 cm off back towards the
-    truth (a sign or projection error would push it away)."""
+    truth (a sign or projection error would push it away), with every optimizer the terms
+    allow."""
     T, V = 2, 3
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=120)
@@ -156,8 +166,8 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm):
     cfg = validate({}, "stages/fit.schema.yaml")
     problem = make_problem(kpm, obs, cfg, np.arange(T), masks=masks)
     off = {"body": 0, "feet": 0, "face": 0, "left_hand": 0, "right_hand": 0}
-    stage = Stage(name="sil", iterations=60, lr=0.002, groups=("root",), parts=off,
-                  silhouette={"inside": 100.0, "cover": 100.0})
+    stage = Stage(name="sil", groups=("root",), parts=off,
+                  silhouette={"inside": 100.0, "cover": 100.0}, **solver)
     before = np.linalg.norm(init["transl"] - gt["transl"], axis=1).mean()
     run_stage(problem, params, cams, stage)
     after = np.linalg.norm(params.transl.detach().numpy() - gt["transl"], axis=1).mean()
