@@ -227,6 +227,11 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
     return R, t, rms, len(inl) / len(obj)
 
 
+def projection_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(V,3,4) ``K [R|t]`` of cameras K, R (V,3,3), t (V,3)."""
+    return np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))
+
+
 def triangulate(P: np.ndarray, uv: np.ndarray, w: np.ndarray, min_views: int = 2
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Linear (DLT) triangulation of many points.
@@ -265,7 +270,7 @@ def leave_one_out_px(K: np.ndarray, R: np.ndarray, t: np.ndarray, uv: np.ndarray
     Returns (V,) medians; NaN for a view with fewer than 5 testable points.
     """
     V, N = w.shape
-    P = np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))
+    P = projection_matrices(K, R, t)
     out = np.full(V, np.nan)
     for v in range(V):
         others = [u for u in range(V) if u != v]

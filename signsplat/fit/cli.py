@@ -33,6 +33,7 @@ from signsplat.fit.bodyfit import HAND_MEAN, KeypointModel
 from signsplat.fit.cameras import Rig, intrinsics_from_fov, project
 from signsplat.fit.sequence import FitResult
 from signsplat.fit.solver import Stage
+from signsplat.geometry.align import camera_centres
 from signsplat.io.atomic import write_bytes_atomic
 from signsplat.io.tables import write_table
 
@@ -101,8 +102,7 @@ def calibrated_extrinsics(calibration: str | os.PathLike | None, view: int | Non
         raise InputError(f"{calibration}: camera(s) {bad.tolist()} have an R that is not a "
                          "rotation (world-to-camera, det +1); fit.multiview.camera_init "
                          "calibrated uses R and t as they are")
-    centres = -np.einsum("vji,vj->vi", rig.R, rig.t)
-    if rig.num_views > 1 and np.ptp(centres, axis=0).max() < 1e-6:
+    if rig.num_views > 1 and np.ptp(camera_centres(rig.R, rig.t), axis=0).max() < 1e-6:
         raise InputError(f"{calibration}: every camera sits at the same place - the table has "
                          "no calibrated extrinsics; choose fit.multiview.camera_init auto, pnp "
                          "or rig_prior")

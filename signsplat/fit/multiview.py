@@ -32,9 +32,11 @@ from signsplat.body import joints as J
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
-                                   rig_prior, rig_up_direction, triangulate)
+                                   projection_matrices, rig_prior, rig_up_direction,
+                                   triangulate)
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
+from signsplat.geometry.align import umeyama
 
 log = logging.getLogger(__name__)
 
@@ -239,29 +241,23 @@ def initial_root(kpm: KeypointModel, rig: Rig, obs: np.ndarray, T: int, dtype=to
     pelvis = j[0, 0].double().cpu().numpy()
     kp0 = kp[0].double().cpu().numpy()
     idx = np.asarray(PNP_KEYPOINTS)
-    P = np.einsum("vij,vjk->vik", rig.K, np.concatenate([rig.R, rig.t[:, :, None]], axis=2))
     seen = np.nonzero((obs[:, :, idx, 2] > 0).sum((0, 2)) > 0)[0][:frames]
-    pts = []
-    for f in seen:
-        o = obs[:, f][:, idx]
-        X, ok = triangulate(P, o[..., :2], o[..., 2])
-        pts.append(np.where(ok[:, None], X, np.nan))
     zero = {"global_orient": np.zeros((T, 3)), "transl": np.zeros((T, 3))}
-    if not pts:
+    if not len(seen):
         return zero
+    o = obs[:, seen][:, :, idx]  # (V,F,K,3): every frame's points triangulated in one call
+    V, F, Kn = o.shape[:3]
+    X, ok = triangulate(projection_matrices(rig.K, rig.R, rig.t), o[..., :2].reshape(V, -1, 2),
+                        o[..., 2].reshape(V, -1))
     with np.errstate(all="ignore"):
-        X = np.nanmedian(np.stack(pts), axis=0)
+        X = np.nanmedian(np.where(ok[:, None], X, np.nan).reshape(F, Kn, 3), axis=0)
     ok = np.isfinite(X).all(1)
     if ok.sum() < 3:
         return zero
-    a, b = kp0[idx][ok], X[ok]
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((b - cb).T @ (a - ca))
-    R = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    t = cb - R @ ca
+    rigid = umeyama(kp0[idx][ok], X[ok], with_scale=False)
     # SMPL-X rotates about the pelvis: posed = R (x - pelvis) + pelvis + transl
-    transl = t + R @ pelvis - pelvis
-    rotvec = cv2.Rodrigues(R)[0].reshape(3)
+    transl = rigid.t + rigid.R @ pelvis - pelvis
+    rotvec = cv2.Rodrigues(rigid.R)[0].reshape(3)
     return {"global_orient": np.tile(rotvec, (T, 1)), "transl": np.tile(transl, (T, 1))}
 
 

@@ -447,9 +447,9 @@ def test_calibrated_cameras_stay_fixed_and_the_body_is_placed_from_them(kpm):
     obs = observe(kpm, moved, rig)
     init = initial_root(kpm, rig, obs, T)
     assert np.linalg.norm(init["transl"][0] - moved["transl"][0]) < 0.1  # betas are unknown
-    ang = np.degrees(np.linalg.norm(cv2.Rodrigues(
-        cv2.Rodrigues(init["global_orient"][0])[0].T
-        @ cv2.Rodrigues(moved["global_orient"][0])[0])[0]))
+    from signsplat.geometry.align import rotation_angle_deg
+    ang = rotation_angle_deg(cv2.Rodrigues(init["global_orient"][0])[0],
+                             cv2.Rodrigues(moved["global_orient"][0])[0])
     assert ang < 10.0
     cfg = _cfg(json.loads(json.dumps(FAST_MV)) | {})
     cfg["multiview"]["camera_init"] = "calibrated"
