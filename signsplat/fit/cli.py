@@ -167,23 +167,33 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
         K = np.stack([intrinsics_from_fov(w, h, sec["approx_fov_degrees"])
                       for w, h in zip(rig_cal.width, rig_cal.height)])
     kpm = load_keypoint_model(body, num_betas, num_expression, device)
-    mask_arr = None
-    sil = [s["name"] for s in sec.get("stages", []) if Stage.from_config(s).uses_silhouette]
-    if mode == "multiview" and sil and not masks:
-        raise InputError(f"fit.multiview.stages: stage(s) {sil} weight the silhouette terms and "
-                         "need the person masks: pass --masks (the perception stage's "
-                         "masks.parquet) or set those stages' silhouette weights to 0")
-    if mode == "multiview" and sil:
+    mask_arr = images = None
+    uses = lambda what: [s["name"] for s in sec.get("stages", [])
+                         if getattr(Stage.from_config(s), what)]
+    sil, flow = uses("uses_silhouette"), uses("uses_flow")
+    if mode == "multiview" and (sil or flow) and not masks:
+        raise InputError(f"fit.multiview.stages: stage(s) {sil + flow} weight the silhouette or "
+                         "flow terms and need the person masks: pass --masks (the perception "
+                         "stage's masks.parquet) or set those stages' weights to 0")
+    if mode == "multiview" and flow and frames_df is None:
+        raise InputError(f"fit.multiview.stages: stage(s) {flow} weight the flow term and need "
+                         "the images: pass --frames (the frames table) or set their flow to 0")
+    if mode == "multiview" and (sil or flow):
         mask_arr = D.read_masks(masks, seq_frames, rig_cal.width, rig_cal.height)
         if view is not None:
             mask_arr = mask_arr[view:view + 1]
+    if mode == "multiview" and flow:
+        images = D.read_grey_images(frames_df, seq_frames, rig_cal.width, rig_cal.height, frames)
+        if view is not None:
+            images = images[view:view + 1]
     extrinsics = None
     if mode == "multiview" and sec.get("camera_init") == "calibrated":
         extrinsics = calibrated_extrinsics(calibration, view)
     try:
         if mode == "multiview":
             result = fit_multiview(kpm, obs, seq_frames, K, rig_cal.width, rig_cal.height, cfg,
-                                   device=device, masks=mask_arr, extrinsics=extrinsics)
+                                   device=device, masks=mask_arr, extrinsics=extrinsics,
+                                   images=images)
         else:
             result = fit_singleview(kpm, obs[0], seq_frames, K[0], int(rig_cal.width[0]),
                                     int(rig_cal.height[0]), cfg, device=device)

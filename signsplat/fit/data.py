@@ -146,6 +146,32 @@ def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> 
     return out
 
 
+def read_grey_images(frames_df: pd.DataFrame, frames: np.ndarray, widths, heights,
+                     path: str | os.PathLike) -> np.ndarray:
+    """Grey images (V,T,H,W) uint8 of every view and fit frame from a ``frames`` table read
+    by :func:`read_frames` (``path`` names it in errors). A frame without an image stays black
+    (its flow pairs then find nothing to follow)."""
+    import cv2
+
+    from signsplat.io.images import read_rgb
+
+    V = len(widths)
+    W, H = int(np.max(widths)), int(np.max(heights))
+    index = {int(f): i for i, f in enumerate(frames)}
+    out = np.zeros((V, len(frames), H, W), np.uint8)
+    for view, frame, img in frames_df[["view", "frame", "image_path"]].itertuples(index=False):
+        if not 0 <= int(view) < V:
+            raise InputError(f"{path}: view {int(view)} but the rig has {V} cameras")
+        if int(frame) not in index:
+            continue
+        rgb = read_rgb(img)
+        if rgb.shape[:2] != (H, W):
+            raise InputError(f"{img}: image is {rgb.shape[1]}x{rgb.shape[0]}, the camera's "
+                             f"{W}x{H}")
+        out[int(view), index[int(frame)]] = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    return out
+
+
 def rig_from_frames(frames_df: pd.DataFrame, path: str | os.PathLike) -> Rig:
     """Image sizes per view from each view's first image (no calibration); K is a placeholder
     (identity focal) to be replaced by approximate intrinsics; R = I, t = 0."""

@@ -34,6 +34,7 @@ from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
                                    projection_matrices, rig_prior, rig_up_direction,
                                    triangulate)
+from signsplat.fit.flow import flow_targets
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
@@ -264,7 +265,8 @@ def initial_root(kpm: KeypointModel, rig: Rig, obs: np.ndarray, T: int, dtype=to
 def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   width, height, cfg: dict, device: torch.device | str = "cpu",
                   dtype=torch.float32, masks: np.ndarray | None = None,
-                  extrinsics: tuple[np.ndarray, np.ndarray] | None = None) -> seq.FitResult:
+                  extrinsics: tuple[np.ndarray, np.ndarray] | None = None,
+                  images: np.ndarray | None = None) -> seq.FitResult:
     """Fit SMPL-X + cameras to cleaned observations.
 
     kpm: keypoint model; obs (V,T,133,3) pixels + confidence (0 = ignore, no NaN);
@@ -272,7 +274,10 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     (V,) pixels; cfg: the validated ``fit`` config section (``cfg['multiview']`` for this mode);
     masks (V,T,H,W) bool person masks for the stages with silhouette weights (a stage with
     such weights and no masks raises ValueError); extrinsics (R (V,3,3), t (V,3)) of a calibrated
-    rig, used (and held fixed) with ``camera_init: calibrated``.
+    rig, used (and held fixed) with ``camera_init: calibrated``; images (V,T,H,W) uint8 grey
+    frames for the stages with a flow weight (their flow is computed once here, with the
+    settings ``cfg['multiview']['flow']``; a stage with a flow weight and no images or masks
+    raises ValueError).
     """
     t0 = time.perf_counter()
     mv = cfg["multiview"]
@@ -320,9 +325,21 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     log.info("world vertical for the upright prior: %s",
              "body frame +y" if up is None else np.round(up, 4).tolist())
     weights = {"upright": mv["upright_weight"], "camera_anchor": mv["camera_anchor_weight"]}
+    flow = None
+    fc = mv.get("flow", {})
+    if any(Stage.from_config(s).uses_flow for s in mv["stages"]):
+        if images is None or masks is None:
+            raise ValueError("a stage weights the flow term: it needs the images and the "
+                             "person masks")
+        tf = time.perf_counter()
+        flow = flow_targets(images, masks, frames, fc.get("gaps", (1, 2, 4)),
+                            fc.get("consistency_px", 0.5), fc.get("preset", "medium"),
+                            dtype=dtype, device=device)
+        log.info("optical flow: %d frame pairs (gaps %s), %.1f s", flow.num_pairs,
+                 list(fc.get("gaps", (1, 2, 4))), time.perf_counter() - tf)
     problem = make_problem(kpm, obs, cfg, frames, weights=weights,
                            dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                           masks=masks)
+                           masks=masks, flow=flow, flow_clamp_px=fc.get("clamp_px", 2.0))
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

@@ -160,18 +160,21 @@ def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t:
 def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
                      t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
                      clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05,
-                     cache: MatchCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                     cache: MatchCache | None = None,
+                     projected: tuple[torch.Tensor, torch.Tensor] | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """(inside, cover) of ``verts (B,N,3)`` world metres, frames ``frames (B,)`` of the targets.
 
     K, R, t (V,...) cameras. Vertices at or behind the ``near`` plane are ignored by both terms.
     ``cache``: reuse the contour matches of earlier calls (:class:`MatchCache`); None matches
     every call. The cover term's gradient flows through the matched vertices either way.
+    ``projected``: ``project(verts, K, R, t)`` when the caller has it already.
     """
     V = K.shape[0]
     B = verts.shape[0]
     T = targets.valid.shape[1]
     H, W = targets.height, targets.width
-    uv, z = project(verts, K, R, t)  # (V,B,N,2), (V,B,N)
+    uv, z = project(verts, K, R, t) if projected is None else projected  # (V,B,N,2), (V,B,N)
     front = z > near
     valid = targets.valid[:, frames]  # (V,B)
     rows = (torch.arange(V, device=verts.device)[:, None] * T

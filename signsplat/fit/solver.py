@@ -5,7 +5,8 @@ A fit is a list of :class:`Stage` s. Each stage optimises some parameter groups 
 decay, batched over the frames it is given. :func:`run_warm_started` runs a stage chunk by chunk
 along the sequence, initialising each chunk from the last solved frame of the previous one.
 A stage with silhouette weights also poses the full mesh and adds the mask terms of
-:mod:`signsplat.fit.silhouette`; other stages never touch the masks.
+:mod:`signsplat.fit.silhouette`; a stage with a flow weight adds the optical-flow term of
+:mod:`signsplat.fit.flow`. Other stages never touch the masks, the images or the flow.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ import torch
 
 from signsplat.fit import objective as obj
 from signsplat.fit.bodyfit import FitParams, KeypointModel
-from signsplat.fit.cameras import CameraParams
+from signsplat.fit.cameras import CameraParams, project
+from signsplat.fit.flow import FlowTargets, flow_term
 from signsplat.fit.silhouette import (
     MatchCache,
     SilhouetteTargets,
@@ -53,21 +55,29 @@ class Stage:
     #: weights of the mask terms (signsplat.fit.silhouette): {"inside": w, "cover": w} in
     #: px^-2; both 0 (the default) = the masks are not used and nothing is computed
     silhouette: dict[str, float] = field(default_factory=dict)
-    #: Adam steps between two contour matchings of the cover term (1 = every step)
+    #: Adam steps between two contour matchings of the cover term and two choices of the
+    #: flow term's vertices (1 = every step)
     rematch_every: int = 1
+    #: weight of the optical-flow term (signsplat.fit.flow) in px^-2; 0 (the default) = the
+    #: images are not read and no flow is computed
+    flow: float = 0.0
 
     def __post_init__(self):
         bad = set(self.silhouette) - set(SILHOUETTE_TERMS)
         if bad:
             raise ValueError(f"stage {self.name!r}: unknown silhouette term(s) {sorted(bad)}; "
                              f"known {list(SILHOUETTE_TERMS)}")
-        if self.optimizer == "lm" and self.uses_silhouette:
-            raise ValueError(f"stage {self.name!r}: the silhouette terms need a gradient "
-                             "optimizer (adam or lbfgs), not lm")
+        if self.optimizer == "lm" and (self.uses_silhouette or self.uses_flow):
+            raise ValueError(f"stage {self.name!r}: the silhouette and flow terms need a "
+                             "gradient optimizer (adam or lbfgs), not lm")
 
     @property
     def uses_silhouette(self) -> bool:
         return any(float(v) > 0 for v in self.silhouette.values())
+
+    @property
+    def uses_flow(self) -> bool:
+        return self.flow > 0
 
     @classmethod
     def from_config(cls, cfg: dict) -> Stage:
@@ -82,7 +92,8 @@ class Stage:
                    final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)),
                    sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"),
                    silhouette=dict(cfg.get("silhouette", {})),
-                   rematch_every=int(cfg.get("rematch_every", 1)))
+                   rematch_every=int(cfg.get("rematch_every", 1)),
+                   flow=float(cfg.get("flow", 0.0)))
 
 
 @dataclass
@@ -105,12 +116,16 @@ class Problem:
     level_cameras: bool = False
     #: mask targets for stages with silhouette weights (None: no masks were given)
     silhouette: SilhouetteTargets | None = None
+    #: flow fields for stages with a flow weight (None: no images were given)
+    flow: FlowTargets | None = None
+    flow_clamp_px: float = 2.0
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
-                 level_cameras: bool = False, masks: np.ndarray | None = None) -> Problem:
+                 level_cameras: bool = False, masks: np.ndarray | None = None,
+                 flow: FlowTargets | None = None, flow_clamp_px: float = 2.0) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -118,6 +133,7 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     vertical of the upright prior; with ``level_cameras`` (and ``up`` given, i.e. the rig's
     x axes span a plane) the vertical is recomputed from the current cameras in every step.
     ``masks (V,T,H,W)`` bool person masks: the targets of stages with silhouette weights.
+    ``flow``: the flow fields of stages with a flow weight (:func:`signsplat.fit.flow.flow_targets`).
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
@@ -138,7 +154,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device),
         level_cameras=bool(level_cameras and up is not None),
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
-                                                                 device=device))
+                                                                 device=device),
+        flow=flow, flow_clamp_px=float(flow_clamp_px))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -153,10 +170,11 @@ def _pose_vector(params: FitParams, sel) -> torch.Tensor:
 
 
 def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
-               sel: slice = slice(None), matches: MatchCache | None = None
-               ) -> dict[str, torch.Tensor]:
-    """All loss terms of the frames ``sel`` (a slice of the sequence). ``matches``: the
-    stage run's contour-match cache of the silhouette terms (None: re-match every call)."""
+               sel: slice = slice(None), matches: MatchCache | None = None,
+               flow_matches: MatchCache | None = None) -> dict[str, torch.Tensor]:
+    """All loss terms of the frames ``sel`` (a slice of the sequence). ``matches`` and
+    ``flow_matches``: the stage run's caches of the silhouette terms' contour matches and of
+    the flow term's vertices (None: match every call)."""
     w = problem.weights
     dev, dt = params.transl.device, params.transl.dtype
     inputs = params.model_inputs(sel)
@@ -164,7 +182,11 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     if sil and problem.silhouette is None:
         raise ValueError(f"stage {stage.name!r} weights the silhouette terms but no person "
                          "masks were given (fit --masks: the perception stage's masks table)")
-    _, kp3d, body = problem.kpm(full=sil, **inputs)
+    fl = stage.uses_flow
+    if fl and problem.flow is None:
+        raise ValueError(f"stage {stage.name!r} weights the flow term but no images were given "
+                         "(fit --frames: the frames table with the images)")
+    _, kp3d, body = problem.kpm(full=sil or fl, **inputs)
     K, R, t = cams()
     kpw = obj.part_weight_vector(stage.parts, dtype=dt, device=dev)
     sigma = problem.sigma_px if stage.sigma_px is None else stage.sigma_px
@@ -184,12 +206,18 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
             (cams.rotvec * cams.free) ** 2 + (cams.dt * cams.free) ** 2).sum()
     if problem.anchor:
         terms["anchor"] = obj.anchor(sub, {k: v[sel] for k, v in problem.anchor.items()}, w)
-    if sil:
+    if sil or fl:
         frames = torch.arange(problem.obs.shape[1], device=dev)[sel]
+        projected = project(body.vertices, K, R, t)
+    if sil:
         inside, cover = silhouette_terms(body.vertices, problem.kpm.model.faces, K, R, t,
-                                         problem.silhouette, frames, cache=matches)
+                                         problem.silhouette, frames, cache=matches,
+                                         projected=projected)
         terms["silhouette_inside"] = float(stage.silhouette.get("inside", 0.0)) * inside
         terms["silhouette_cover"] = float(stage.silhouette.get("cover", 0.0)) * cover
+    if fl:
+        terms["flow"] = stage.flow * flow_term(*projected, problem.flow, frames,
+                                               problem.flow_clamp_px, cache=flow_matches)
     return terms
 
 
@@ -241,7 +269,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     opt = torch.optim.Adam(groups)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
-    cache = MatchCache(stage.rematch_every)
+    cache, flow_cache = MatchCache(stage.rematch_every), MatchCache(stage.rematch_every)
     for it in range(stage.iterations):
         frac = it / max(stage.iterations - 1, 1)
         scale = stage.final_lr_fraction + (1 - stage.final_lr_fraction) * 0.5 * (
@@ -249,7 +277,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
         for g, b in zip(opt.param_groups, base):
             g["lr"] = b * scale
         opt.zero_grad(set_to_none=True)
-        terms = loss_terms(problem, params, cams, stage, sel, cache)
+        terms = loss_terms(problem, params, cams, stage, sel, cache, flow_cache)
         loss = sum(terms.values())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss at iteration {it} "

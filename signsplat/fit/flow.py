@@ -1,0 +1,213 @@
+"""Optical-flow term of the multi-view fit: the images' own motion pins how the body moves.
+
+Why: after the keypoint and mask stages, most of what changes from frame to frame in the fit's
+error comes from the detector (on ``studio6`` the right hand's projection wanders 1.4 px
+between frames, the torso 0.6 px), and an avatar trained on such bodies blurs. Dense optical
+flow between two frames of one camera is measured on the image texture itself: on ``studio6``
+OpenCV's DIS flow agrees with the true motion of the visible surface to about 0.1-0.2 px.
+
+For each view and each pair of frames ``(a, b = a + gap)`` (``gaps`` in frame numbers; only
+pairs whose frame numbers differ by exactly ``gap``) the forward flow F and the backward flow
+are computed once. F is trusted where the two agree within ``consistency_px`` and where both
+frames' person masks hold the point; elsewhere it is NaN.
+
+The term: a body vertex seen in both frames (a point z-buffer per image, see
+:func:`visible_vertices`) that projects to ``p`` in frame a should move by ``F(p)``:
+``| (uv_b - uv_a) - F(p) |^2`` in squared pixels, clamped at ``clamp_px^2``, averaged over the
+pair's vertices, summed over pairs and divided by the frames of the batch (like the keypoint
+and silhouette terms). Which vertices and their target motions are chosen without gradient,
+every ``rematch_every`` steps (a :class:`~signsplat.fit.silhouette.MatchCache`); the gradient
+flows through both frames' projections, so the term constrains the motion between frames and
+never the absolute position (the keypoints and masks keep that).
+
+Memory: the flow fields, ``pairs x H x W x 8`` bytes (``studio6``: 6 views, 60 frames, gaps
+1, 2, 4 -> 1,038 pairs, 544 MB at 256 x 256).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+#: OpenCV's DIS presets by name (config ``fit.multiview.flow.preset``)
+PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+           "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+           "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+
+
+@dataclass
+class FlowTargets:
+    """Flow fields of every frame pair (see :func:`flow_targets`).
+
+    ``flow (P,2,H,W)`` px from frame ``a`` to frame ``b`` of ``view`` (NaN where untrusted);
+    ``view``, ``a``, ``b`` (P,) int64 indices into the fit's views and frames.
+    """
+
+    flow: torch.Tensor
+    view: torch.Tensor
+    a: torch.Tensor
+    b: torch.Tensor
+    width: int
+    height: int
+
+    @property
+    def num_pairs(self) -> int:
+        return int(self.view.shape[0])
+
+
+@dataclass
+class FlowMatches:
+    """Vertices followed by the flow term: pair ``pair``, vertex ``vertex`` (M,) int64, its
+    target motion ``motion (M,2)`` px; ``frames`` (B,) of the batch they were chosen for."""
+
+    pair: torch.Tensor
+    vertex: torch.Tensor
+    motion: torch.Tensor
+    frames: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.vertex.shape[0])
+
+
+def frame_pairs(frames: np.ndarray, gaps) -> list[tuple[int, int]]:
+    """Index pairs (i, j), i < j, of the frames whose numbers differ by one of ``gaps``."""
+    frames = np.asarray(frames)
+    pos = {int(f): i for i, f in enumerate(frames)}
+    out = []
+    for g in sorted({int(g) for g in gaps}):
+        if g < 1:
+            raise ValueError(f"flow gaps must be >= 1 frame, got {g}")
+        out += [(i, pos[int(f) + g]) for i, f in enumerate(frames) if int(f) + g in pos]
+    return out
+
+
+def trusted_flow(first: np.ndarray, second: np.ndarray, mask_a: np.ndarray, mask_b: np.ndarray,
+                 dis, consistency_px: float) -> np.ndarray:
+    """(H,W,2) float32 flow from grey image ``first`` to ``second``, NaN where the backward
+    flow does not bring the point back within ``consistency_px`` or where it leaves the masks."""
+    fwd = dis.calc(first, second, None)
+    bwd = dis.calc(second, first, None)
+    h, w = first.shape
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    tx, ty = gx + fwd[..., 0], gy + fwd[..., 1]
+    back = cv2.remap(bwd, tx, ty, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=(np.nan, np.nan))
+    landed = cv2.remap(mask_b.astype(np.uint8), tx, ty, cv2.INTER_NEAREST,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    ok = (np.linalg.norm(fwd + back, axis=-1) < consistency_px) & mask_a & landed
+    fwd[~ok] = np.nan
+    return fwd
+
+
+def flow_targets(images: np.ndarray, masks: np.ndarray, frames: np.ndarray, gaps=(1, 2, 4),
+                 consistency_px: float = 0.5, preset: str = "medium", dtype=torch.float32,
+                 device="cpu", progress=None) -> FlowTargets:
+    """Trusted flow of every view's frame pairs. ``images (V,T,H,W)`` uint8 grey,
+    ``masks (V,T,H,W)`` bool, ``frames (T,)`` frame numbers. Pairs with an empty mask are
+    left out. ``progress``: an optional callable wrapped around the pair iterator."""
+    images = np.asarray(images)
+    masks = np.asarray(masks, bool)
+    if images.ndim != 4 or images.shape != masks.shape:
+        raise ValueError(f"images {images.shape} and masks {masks.shape} must both be "
+                         "(views, frames, height, width)")
+    if preset not in PRESETS:
+        raise ValueError(f"unknown flow preset {preset!r}; known {sorted(PRESETS)}")
+    V, _T, H, W = images.shape
+    dis = cv2.DISOpticalFlow_create(PRESETS[preset])
+    jobs = [(v, i, j) for v in range(V) for i, j in frame_pairs(frames, gaps)
+            if masks[v, i].any() and masks[v, j].any()]
+    flows = np.empty((len(jobs), 2, H, W), np.float32)
+    for k, (v, i, j) in enumerate(progress(jobs) if progress else jobs):
+        flows[k] = trusted_flow(images[v, i], images[v, j], masks[v, i], masks[v, j], dis,
+                                consistency_px).transpose(2, 0, 1)
+    idx = np.asarray(jobs, np.int64).reshape(-1, 3)
+    as_t = lambda x: torch.as_tensor(x, device=device)
+    return FlowTargets(torch.as_tensor(flows, dtype=dtype, device=device), as_t(idx[:, 0]),
+                       as_t(idx[:, 1]), as_t(idx[:, 2]), W, H)
+
+
+def visible_vertices(uv: torch.Tensor, z: torch.Tensor, width: int, height: int,
+                     near: float = 0.05, cell_px: float = 2.0, tolerance_m: float = 0.02
+                     ) -> torch.Tensor:
+    """(V,B,N) bool: the vertex is in the image, in front of ``near`` and within
+    ``tolerance_m`` of the nearest vertex projecting into its ``cell_px`` cell (a point
+    z-buffer; the mesh is dense enough at fitting resolutions that a cell of 2 px holds
+    the front surface). ``uv (V,B,N,2)`` px, ``z (V,B,N)`` m."""
+    V, B, _N = z.shape
+    gw, gh = int(np.ceil(width / cell_px)), int(np.ceil(height / cell_px))
+    ok = (z > near) & (uv[..., 0] >= 0) & (uv[..., 1] >= 0) & (uv[..., 0] < width) & \
+        (uv[..., 1] < height)
+    cx = (uv[..., 0] / cell_px).floor().clamp(0, gw - 1).long()
+    cy = (uv[..., 1] / cell_px).floor().clamp(0, gh - 1).long()
+    image = torch.arange(V * B, device=z.device).reshape(V, B, 1)
+    key = (image * (gw * gh) + cy * gw + cx)[ok]
+    zbuf = torch.full((V * B * gw * gh,), float("inf"), dtype=z.dtype, device=z.device)
+    zbuf.scatter_reduce_(0, key, z[ok], reduce="amin")
+    vis = torch.zeros_like(ok)
+    vis[ok] = z[ok] <= zbuf[key] + tolerance_m
+    return vis
+
+
+def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
+               near: float = 0.05) -> FlowMatches:
+    """Vertices seen in both frames of every pair inside the batch ``frames (B,)`` and the
+    flow at their projection in the first frame (no gradient)."""
+    dev = uv.device
+    frames_np = frames.cpu().numpy()
+    local = torch.full((int(frames_np.max(initial=-1)) + 2,), -1, dtype=torch.int64, device=dev)
+    local[frames.to(dev)] = torch.arange(len(frames_np), device=dev)
+
+    def lookup(idx):
+        inside = idx < local.shape[0]
+        return torch.where(inside, local[idx.clamp(max=local.shape[0] - 1)], -1)
+
+    la, lb = lookup(targets.a), lookup(targets.b)
+    sel = torch.nonzero((la >= 0) & (lb >= 0)).flatten()
+    empty = torch.zeros(0, dtype=torch.int64, device=dev)
+    if len(sel) == 0:
+        return FlowMatches(empty, empty, uv.new_zeros((0, 2)), frames_np.copy())
+    with torch.no_grad():
+        vis = visible_vertices(uv.detach(), z.detach(), targets.width, targets.height, near)
+        view, a, b = targets.view[sel], la[sel], lb[sel]
+        both = vis[view, a] & vis[view, b]  # (S,N)
+        p = uv.detach()[view, a]  # (S,N,2)
+        grid = torch.stack([p[..., 0] / (targets.width - 1), p[..., 1] / (targets.height - 1)],
+                           -1) * 2 - 1
+        f = torch.nn.functional.grid_sample(targets.flow[sel], grid[:, None], mode="bilinear",
+                                            align_corners=True, padding_mode="zeros")
+        f = f[:, :, 0].permute(0, 2, 1)  # (S,N,2)
+        keep = both & torch.isfinite(f).all(-1)
+        s_idx, n_idx = torch.nonzero(keep, as_tuple=True)
+    return FlowMatches(sel[s_idx], n_idx, f[s_idx, n_idx].to(uv.dtype), frames_np.copy())
+
+
+def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
+              clamp_px: float = 2.0, cache=None) -> torch.Tensor:
+    """The flow term of the batch: ``uv (V,B,N,2)``, ``z (V,B,N)`` the projections of the
+    batch's vertices, ``frames (B,)`` their indices in the targets. ``cache``: a
+    :class:`~signsplat.fit.silhouette.MatchCache` keeping the matches between re-matchings
+    (None: match every call). Zero when no pair of frames lies inside the batch."""
+    matches = None if cache is None else cache.current(frames)
+    if matches is None:
+        matches = match_flow(uv, z, targets, frames)
+        if cache is not None:
+            cache.matches, cache.age = matches, 0
+    if cache is not None:
+        cache.age += 1
+    if matches.count == 0:
+        return uv.new_zeros(())
+    local = torch.full((int(frames.max()) + 1,), -1, dtype=torch.int64, device=uv.device)
+    local[frames.to(uv.device)] = torch.arange(len(frames), device=uv.device)
+    pair, vert = matches.pair, matches.vertex
+    view, a, b = targets.view[pair], local[targets.a[pair]], local[targets.b[pair]]
+    moved = uv[view, b, vert] - uv[view, a, vert]
+    r2 = ((moved - matches.motion) ** 2).sum(-1).clamp(max=clamp_px ** 2)
+    P = targets.num_pairs
+    per = uv.new_zeros(P).index_add_(0, pair, r2)
+    cnt = uv.new_zeros(P).index_add_(0, pair, torch.ones_like(r2))
+    used = cnt > 0
+    return (per[used] / cnt[used]).sum() / max(len(frames), 1)
