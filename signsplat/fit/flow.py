@@ -137,25 +137,40 @@ def visible_vertices(uv: torch.Tensor, z: torch.Tensor, width: int, height: int,
     ``tolerance_m`` of the nearest vertex projecting into its ``cell_px`` cell (a point
     z-buffer; the mesh is dense enough at fitting resolutions that a cell of 2 px holds
     the front surface). ``uv (V,B,N,2)`` px, ``z (V,B,N)`` m."""
-    V, B, _N = z.shape
+    V, B, N = z.shape
     gw, gh = int(np.ceil(width / cell_px)), int(np.ceil(height / cell_px))
     ok = (z > near) & (uv[..., 0] >= 0) & (uv[..., 1] >= 0) & (uv[..., 0] < width) & \
         (uv[..., 1] < height)
     cx = (uv[..., 0] / cell_px).floor().clamp(0, gw - 1).long()
     cy = (uv[..., 1] / cell_px).floor().clamp(0, gh - 1).long()
     image = torch.arange(V * B, device=z.device).reshape(V, B, 1)
-    key = (image * (gw * gh) + cy * gw + cx)[ok]
-    zbuf = torch.full((V * B * gw * gh,), float("inf"), dtype=z.dtype, device=z.device)
-    zbuf.scatter_reduce_(0, key, z[ok], reduce="amin")
-    vis = torch.zeros_like(ok)
-    vis[ok] = z[ok] <= zbuf[key] + tolerance_m
-    return vis
+    cells = V * B * gw * gh
+    # points not in the image go to one extra cell nobody reads (no boolean indexing: faster)
+    key = torch.where(ok, image * (gw * gh) + cy * gw + cx, cells).reshape(-1)
+    zbuf = torch.full((cells + 1,), float("inf"), dtype=z.dtype, device=z.device)
+    zbuf.scatter_reduce_(0, key, z.reshape(-1), reduce="amin")
+    return ok & (z <= zbuf[key].reshape(V, B, N) + tolerance_m)
+
+
+def bilinear(fields: torch.Tensor, index: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (M,C) of ``fields (P,C,H,W)`` at ``points (M,2)`` (x, y px) of the
+    fields ``index (M,)``; NaN where a corner is NaN, points clamped to the image."""
+    _, _, H, W = fields.shape
+    x = points[:, 0].clamp(0, W - 1)
+    y = points[:, 1].clamp(0, H - 1)
+    x0 = x.floor().clamp(max=W - 2).long()
+    y0 = y.floor().clamp(max=H - 2).long()
+    wx, wy = (x - x0)[:, None], (y - y0)[:, None]
+    corner = lambda dy, dx: fields[index, :, y0 + dy, x0 + dx]  # noqa: E731
+    return ((corner(0, 0) * (1 - wx) + corner(0, 1) * wx) * (1 - wy)
+            + (corner(1, 0) * (1 - wx) + corner(1, 1) * wx) * wy)
 
 
 def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
-               near: float = 0.05) -> FlowMatches:
+               near: float = 0.05, max_vertices: int = 0) -> FlowMatches:
     """Vertices seen in both frames of every pair inside the batch ``frames (B,)`` and the
-    flow at their projection in the first frame (no gradient)."""
+    flow at their projection in the first frame (no gradient). ``max_vertices`` > 0 keeps at
+    most about that many per pair, evenly spaced in vertex order (every k-th of those found)."""
     dev = uv.device
     frames_np = frames.cpu().numpy()
     local = torch.full((int(frames_np.max(initial=-1)) + 2,), -1, dtype=torch.int64, device=dev)
@@ -172,28 +187,29 @@ def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: 
         return FlowMatches(empty, empty, uv.new_zeros((0, 2)), frames_np.copy())
     with torch.no_grad():
         vis = visible_vertices(uv.detach(), z.detach(), targets.width, targets.height, near)
-        view, a, b = targets.view[sel], la[sel], lb[sel]
-        both = vis[view, a] & vis[view, b]  # (S,N)
-        p = uv.detach()[view, a]  # (S,N,2)
-        grid = torch.stack([p[..., 0] / (targets.width - 1), p[..., 1] / (targets.height - 1)],
-                           -1) * 2 - 1
-        f = torch.nn.functional.grid_sample(targets.flow[sel], grid[:, None], mode="bilinear",
-                                            align_corners=True, padding_mode="zeros")
-        f = f[:, :, 0].permute(0, 2, 1)  # (S,N,2)
-        keep = both & torch.isfinite(f).all(-1)
+        view, a = targets.view[sel], la[sel]
+        keep = vis[view, a] & vis[view, lb[sel]]  # (S,N): seen in both frames
+        if max_vertices > 0:
+            found = keep.sum(1, keepdim=True)
+            step = torch.div(found + max_vertices - 1, max_vertices, rounding_mode="floor")
+            keep = keep & ((keep.cumsum(1) - 1) % step.clamp(min=1) == 0)
         s_idx, n_idx = torch.nonzero(keep, as_tuple=True)
-    return FlowMatches(sel[s_idx], n_idx, f[s_idx, n_idx].to(uv.dtype), frames_np.copy())
+        f = bilinear(targets.flow, sel[s_idx], uv.detach()[view[s_idx], a[s_idx], n_idx])
+        ok = torch.isfinite(f).all(-1)
+        s_idx, n_idx, f = s_idx[ok], n_idx[ok], f[ok]
+    return FlowMatches(sel[s_idx], n_idx, f.to(uv.dtype), frames_np.copy())
 
 
 def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
-              clamp_px: float = 2.0, cache=None) -> torch.Tensor:
+              clamp_px: float = 2.0, cache=None, max_vertices: int = 0) -> torch.Tensor:
     """The flow term of the batch: ``uv (V,B,N,2)``, ``z (V,B,N)`` the projections of the
     batch's vertices, ``frames (B,)`` their indices in the targets. ``cache``: a
     :class:`~signsplat.fit.silhouette.MatchCache` keeping the matches between re-matchings
-    (None: match every call). Zero when no pair of frames lies inside the batch."""
+    (None: match every call); ``max_vertices``: see :func:`match_flow`. Zero when no pair of
+    frames lies inside the batch."""
     matches = None if cache is None else cache.current(frames)
     if matches is None:
-        matches = match_flow(uv, z, targets, frames)
+        matches = match_flow(uv, z, targets, frames, max_vertices=max_vertices)
         if cache is not None:
             cache.matches, cache.age = matches, 0
     if cache is not None:

@@ -339,7 +339,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                  list(fc.get("gaps", (1, 2, 4))), time.perf_counter() - tf)
     problem = make_problem(kpm, obs, cfg, frames, weights=weights,
                            dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                           masks=masks, flow=flow, flow_clamp_px=fc.get("clamp_px", 2.0))
+                           masks=masks, flow=flow, flow_clamp_px=fc.get("clamp_px", 2.0),
+                           flow_max_vertices=fc.get("max_vertices", 0))
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)

@@ -119,13 +119,15 @@ class Problem:
     #: flow fields for stages with a flow weight (None: no images were given)
     flow: FlowTargets | None = None
     flow_clamp_px: float = 2.0
+    flow_max_vertices: int = 0  # per frame pair (0 = all that are seen)
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
                  level_cameras: bool = False, masks: np.ndarray | None = None,
-                 flow: FlowTargets | None = None, flow_clamp_px: float = 2.0) -> Problem:
+                 flow: FlowTargets | None = None, flow_clamp_px: float = 2.0,
+                 flow_max_vertices: int = 0) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -155,7 +157,7 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         level_cameras=bool(level_cameras and up is not None),
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
                                                                  device=device),
-        flow=flow, flow_clamp_px=float(flow_clamp_px))
+        flow=flow, flow_clamp_px=float(flow_clamp_px), flow_max_vertices=int(flow_max_vertices))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -217,7 +219,8 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         terms["silhouette_cover"] = float(stage.silhouette.get("cover", 0.0)) * cover
     if fl:
         terms["flow"] = stage.flow * flow_term(*projected, problem.flow, frames,
-                                               problem.flow_clamp_px, cache=flow_matches)
+                                               problem.flow_clamp_px, cache=flow_matches,
+                                               max_vertices=problem.flow_max_vertices)
     return terms
 
 

@@ -15,6 +15,7 @@ from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams, project
 from signsplat.fit.flow import (
     FlowTargets,
+    bilinear,
     flow_targets,
     flow_term,
     frame_pairs,
@@ -67,6 +68,17 @@ def test_trusted_flow_measures_a_subpixel_shift_and_drops_the_rest():
     # an unrelated second image: the backward flow disagrees almost everywhere
     g = trusted_flow(a, _texture(seed=1), mask_a, mask_a, dis, 0.5)
     assert np.isfinite(g).all(-1).mean() < 0.5 * np.isfinite(f).all(-1).mean()
+
+
+def test_bilinear_samples_and_propagates_nan():
+    f = torch.arange(2 * 2 * 3 * 4, dtype=torch.float32).reshape(2, 2, 3, 4)
+    f[1, :, 2, 3] = float("nan")
+    pts = torch.tensor([[1.5, 1.0], [0.0, 0.0], [3.0, 2.0], [9.0, 9.0]])
+    out = bilinear(f, torch.tensor([0, 1, 0, 1]), pts)
+    assert torch.allclose(out[0], torch.tensor([5.5, 17.5]))  # between x = 1 and 2, row 1
+    assert torch.allclose(out[1], f[1, :, 0, 0])
+    assert torch.allclose(out[2], f[0, :, 2, 3])  # the far corner, exactly
+    assert torch.isnan(out[3]).all()  # clamped onto the NaN corner of field 1
 
 
 def test_visible_vertices_hides_the_farther_point_of_a_cell():
@@ -136,6 +148,10 @@ def test_flow_matches_are_kept_until_due_and_stay_finite_in_hard_cases(kpm):
     uv, z = project(verts, K, R, t)
     fresh = match_flow(uv, z, targets, frames)
     assert fresh.count > 1000 and torch.isfinite(fresh.motion).all()
+    few = match_flow(uv, z, targets, frames, max_vertices=100)
+    per_pair = torch.bincount(few.pair, minlength=targets.num_pairs)
+    assert int(per_pair.max()) <= 100 and int(per_pair.min()) >= 50
+    assert set(few.vertex.tolist()) <= set(fresh.vertex.tolist())
     cache = MatchCache(every=3)
     flow_term(uv, z, targets, frames, cache=cache)
     first = cache.matches
