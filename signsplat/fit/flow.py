@@ -161,7 +161,7 @@ def bilinear(fields: torch.Tensor, index: torch.Tensor, points: torch.Tensor) ->
     x0 = x.floor().clamp(max=W - 2).long()
     y0 = y.floor().clamp(max=H - 2).long()
     wx, wy = (x - x0)[:, None], (y - y0)[:, None]
-    corner = lambda dy, dx: fields[index, :, y0 + dy, x0 + dx]  # noqa: E731
+    corner = lambda dy, dx: fields[index, :, y0 + dy, x0 + dx]
     return ((corner(0, 0) * (1 - wx) + corner(0, 1) * wx) * (1 - wy)
             + (corner(1, 0) * (1 - wx) + corner(1, 1) * wx) * wy)
 
