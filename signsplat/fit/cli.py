@@ -161,6 +161,14 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
                          f"{cfg['min_score']} or NaN)")
     mode = choose_mode(cfg, obs.shape[0])
     sec = cfg[mode]
+    if mode == "singleview":
+        multi_only = [s["name"] for key in ("init_stages", "refine_stages")
+                      for s in sec.get(key, [])
+                      if Stage.from_config(s).uses_silhouette or Stage.from_config(s).uses_flow]
+        if multi_only:
+            raise InputError(f"fit.singleview: stage(s) {multi_only} weight the silhouette or "
+                             "flow terms, which only the multi-view fit has; set those "
+                             "weights to 0")
     if sec["intrinsics"] == "calibrated":
         K = rig_cal.K
     else:

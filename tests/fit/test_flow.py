@@ -273,3 +273,21 @@ def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys
     assert main(args + ["--frames", str(d / "frames.parquet"), "--out-dir",
                         str(tmp_path / "b")]) == 0
     assert (tmp_path / "b" / "smplx_fit.parquet").is_file()
+
+
+def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, body_path, capsys):
+    from test_fit import _write_inputs
+
+    from signsplat.cli import main
+
+    d = _write_inputs(tmp_path, kpm)
+    cfg = {"singleview": {"refine_stages": [{"name": "fl", "iterations": 1, "lr": 0.001,
+                                             "groups": ["root"], "flow": 1}]}}
+    args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
+            str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
+            str(body_path), "--view", "0", "--config-json", json.dumps(cfg),
+            "--out-dir", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "fit.singleview" in err and "['fl']" in err and "multi-view" in err
+    assert not (tmp_path / "o" / "smplx_fit.parquet").exists()
