@@ -2,7 +2,8 @@
 # camera, else singleview (the CLI decides from the number of cameras; config fit.mode forces).
 # Keypoints: config fit.keypoints = detected (perception stage, default) or ground_truth
 # (the simulator's keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette
-# stage) come from the same source.
+# stage) come from the same source. The frames table's images feed the overlays and the
+# silhouette stage's optical-flow term.
 
 FIT_CFG = config.get("fit", {})
 
