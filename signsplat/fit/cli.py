@@ -87,6 +87,13 @@ def choose_mode(cfg: dict, num_views: int) -> str:
     return mode
 
 
+def stages_using(stages: list[dict], *terms: str) -> list[str]:
+    """Names of the stage configs whose :class:`Stage` has any of the properties ``terms``
+    (``uses_silhouette``, ``uses_flow``)."""
+    return [s["name"] for s in stages
+            if any(getattr(Stage.from_config(s), term) for term in terms)]
+
+
 def calibrated_extrinsics(calibration: str | os.PathLike | None, view: int | None = None
                           ) -> tuple[np.ndarray, np.ndarray]:
     """(R (V,3,3), t (V,3)) of a calibrated rig's cameras table, for ``camera_init:
@@ -162,9 +169,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     mode = choose_mode(cfg, obs.shape[0])
     sec = cfg[mode]
     if mode == "singleview":
-        multi_only = [s["name"] for key in ("init_stages", "refine_stages")
-                      for s in sec.get(key, [])
-                      if Stage.from_config(s).uses_silhouette or Stage.from_config(s).uses_flow]
+        sv_stages = sec.get("init_stages", []) + sec.get("refine_stages", [])
+        multi_only = stages_using(sv_stages, "uses_silhouette", "uses_flow")
         if multi_only:
             raise InputError(f"fit.singleview: stage(s) {multi_only} weight the silhouette or "
                              "flow terms, which only the multi-view fit has; set those "
@@ -176,9 +182,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
                       for w, h in zip(rig_cal.width, rig_cal.height)])
     kpm = load_keypoint_model(body, num_betas, num_expression, device)
     mask_arr = images = None
-    uses = lambda what: [s["name"] for s in sec.get("stages", [])
-                         if getattr(Stage.from_config(s), what)]
-    sil, flow = uses("uses_silhouette"), uses("uses_flow")
+    sil = stages_using(sec.get("stages", []), "uses_silhouette")
+    flow = stages_using(sec.get("stages", []), "uses_flow")
     if mode == "multiview" and (sil or flow) and not masks:
         raise InputError(f"fit.multiview.stages: stage(s) {sil + flow} weight the silhouette or "
                          "flow terms and need the person masks: pass --masks (the perception "

@@ -166,6 +166,15 @@ def bilinear(fields: torch.Tensor, index: torch.Tensor, points: torch.Tensor) ->
             + (corner(1, 0) * (1 - wx) + corner(1, 1) * wx) * wy)
 
 
+def batch_positions(frames: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Position in the batch ``frames (B,)`` of each sequence frame ``index``, -1 if absent."""
+    dev = index.device
+    size = int(frames.max()) + 2 if len(frames) else 1
+    local = torch.full((size,), -1, dtype=torch.int64, device=dev)
+    local[frames.to(dev)] = torch.arange(len(frames), device=dev)
+    return torch.where(index < size, local[index.clamp(max=size - 1)], -1)
+
+
 def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
                near: float = 0.05, max_vertices: int = 0) -> FlowMatches:
     """Vertices seen in both frames of every pair inside the batch ``frames (B,)`` and the
@@ -173,14 +182,7 @@ def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: 
     most about that many per pair, evenly spaced in vertex order (every k-th of those found)."""
     dev = uv.device
     frames_np = frames.cpu().numpy()
-    local = torch.full((int(frames_np.max(initial=-1)) + 2,), -1, dtype=torch.int64, device=dev)
-    local[frames.to(dev)] = torch.arange(len(frames_np), device=dev)
-
-    def lookup(idx):
-        inside = idx < local.shape[0]
-        return torch.where(inside, local[idx.clamp(max=local.shape[0] - 1)], -1)
-
-    la, lb = lookup(targets.a), lookup(targets.b)
+    la, lb = batch_positions(frames, targets.a), batch_positions(frames, targets.b)
     sel = torch.nonzero((la >= 0) & (lb >= 0)).flatten()
     empty = torch.zeros(0, dtype=torch.int64, device=dev)
     if len(sel) == 0:
@@ -216,10 +218,9 @@ def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: t
         cache.age += 1
     if matches.count == 0:
         return uv.new_zeros(())
-    local = torch.full((int(frames.max()) + 1,), -1, dtype=torch.int64, device=uv.device)
-    local[frames.to(uv.device)] = torch.arange(len(frames), device=uv.device)
     pair, vert = matches.pair, matches.vertex
-    view, a, b = targets.view[pair], local[targets.a[pair]], local[targets.b[pair]]
+    view = targets.view[pair]
+    a, b = batch_positions(frames, targets.a[pair]), batch_positions(frames, targets.b[pair])
     moved = uv[view, b, vert] - uv[view, a, vert]
     r2 = ((moved - matches.motion) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     P = targets.num_pairs

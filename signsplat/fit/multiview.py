@@ -325,22 +325,22 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     log.info("world vertical for the upright prior: %s",
              "body frame +y" if up is None else np.round(up, 4).tolist())
     weights = {"upright": mv["upright_weight"], "camera_anchor": mv["camera_anchor_weight"]}
-    flow = None
-    fc = mv.get("flow", {})
+    flow_args = {}
     if any(Stage.from_config(s).uses_flow for s in mv["stages"]):
         if images is None or masks is None:
             raise ValueError("a stage weights the flow term: it needs the images and the "
                              "person masks")
+        fc = mv["flow"]  # validated: the schema holds the defaults
         tf = time.perf_counter()
-        flow = flow_targets(images, masks, frames, fc.get("gaps", (1, 2, 4)),
-                            fc.get("consistency_px", 0.5), fc.get("preset", "medium"),
-                            dtype=dtype, device=device)
+        flow = flow_targets(images, masks, frames, fc["gaps"], fc["consistency_px"],
+                            fc["preset"], dtype=dtype, device=device)
         log.info("optical flow: %d frame pairs (gaps %s), %.1f s", flow.num_pairs,
-                 list(fc.get("gaps", (1, 2, 4))), time.perf_counter() - tf)
+                 fc["gaps"], time.perf_counter() - tf)
+        flow_args = {"flow": flow, "flow_clamp_px": fc["clamp_px"],
+                     "flow_max_vertices": fc["max_vertices"]}
     problem = make_problem(kpm, obs, cfg, frames, weights=weights,
                            dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                           masks=masks, flow=flow, flow_clamp_px=fc.get("clamp_px", 2.0),
-                           flow_max_vertices=fc.get("max_vertices", 0))
+                           masks=masks, **flow_args)
     history = {}
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)
