@@ -23,8 +23,8 @@ A camera far from every training camera (angle, seen from the body centre, above
 from __future__ import annotations
 
 import dataclasses
-
 import logging
+import math
 import os
 import time
 from pathlib import Path
@@ -65,6 +65,16 @@ METRICS = register_table(Table(
 ))
 
 PROTOCOLS = ("bg_replaced", "mask_only", "raw_gt")
+def refine_lr_at(step: int, steps: int, lr: float, decay: str) -> float:
+    """Learning rate of test-time refinement step ``step`` of ``steps``: ``lr`` throughout
+    (constant) or a half cosine from ``lr`` towards 0 (cosine)."""
+    if decay == "constant":
+        return lr
+    if decay == "cosine":
+        return 0.5 * lr * (1.0 + math.cos(math.pi * step / steps))
+    raise ValueError(f"eval.refine_decay must be 'constant' or 'cosine', not {decay!r}")
+
+
 REFINE_BLOCKS = ("global_orient", "body_pose", "jaw_pose", "left_hand_pose", "right_hand_pose",
                  "transl", "expression")
 
@@ -152,8 +162,10 @@ class Evaluator:
         params = self.frame_params(frame_i)
         start = {k: v.clone() for k, v in params.items()}
         free = {k: v.requires_grad_(True) for k, v in params.items() if k in REFINE_BLOCKS}
-        opt = torch.optim.Adam(list(free.values()), lr=self.cfg.eval.refine_lr)
-        for step in range(self.cfg.eval.refine_steps):
+        steps, lr = self.cfg.eval.refine_steps, self.cfg.eval.refine_lr
+        opt = torch.optim.Adam(list(free.values()), lr=lr)
+        for step in range(steps):
+            opt.param_groups[0]["lr"] = refine_lr_at(step, steps, lr, self.cfg.eval.refine_decay)
             vi = int(views[step % len(views)])
             opt.zero_grad(set_to_none=True)
             loss = self._image_loss(params, frame_i, vi)

@@ -355,14 +355,25 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
     np.testing.assert_array_equal(a.value.to_numpy(), b.value.to_numpy())
 
 
+def test_refinement_learning_rate_schedules():
+    from signsplat.avatar.evaluate import refine_lr_at
+
+    assert [refine_lr_at(s, 60, 2e-3, "constant") for s in (0, 30, 59)] == [2e-3] * 3
+    cos = [refine_lr_at(s, 60, 2e-3, "cosine") for s in range(60)]
+    assert cos[0] == pytest.approx(2e-3) and cos[30] == pytest.approx(1e-3)
+    assert all(a > b for a, b in zip(cos, cos[1:])) and 0 < cos[-1] < 2e-5
+    with pytest.raises(ValueError, match="refine_decay"):
+        refine_lr_at(0, 60, 2e-3, "linear")
+
+
 def test_training_ignores_the_settings_the_workflow_marks_evaluation_only(scene):
     """The workflow leaves EVAL_ONLY_KEYS out of the training rule's params, so changing them
     re-runs only the evaluation; the trainer must then really not read them."""
     from signsplat.avatar.config import EVAL_ONLY_KEYS as keys
 
     assert "refine_steps" in keys and "crop_size" not in keys
-    odd = {"refine_steps": 0, "refine_lr": 0.5, "far_view_degrees": 1.0, "save_images": 0,
-           "max_frames": 1}
+    odd = {"refine_steps": 0, "refine_lr": 0.5, "refine_decay": "cosine", "far_view_degrees": 1.0,
+           "save_images": 0, "max_frames": 1}
     assert set(keys) <= set(odd)
     body, data = scene
     runs = []
