@@ -1,5 +1,6 @@
 """Trainer and evaluation on a tiny scene rendered from a 'teacher' avatar (real rasterizer)."""
 
+import itertools
 import logging
 
 import numpy as np
@@ -361,7 +362,7 @@ def test_refinement_learning_rate_schedules():
     assert [refine_lr_at(s, 60, 2e-3, "constant") for s in (0, 30, 59)] == [2e-3] * 3
     cos = [refine_lr_at(s, 60, 2e-3, "cosine") for s in range(60)]
     assert cos[0] == pytest.approx(2e-3) and cos[30] == pytest.approx(1e-3)
-    assert all(a > b for a, b in zip(cos, cos[1:])) and 0 < cos[-1] < 2e-5
+    assert all(a > b for a, b in itertools.pairwise(cos)) and 0 < cos[-1] < 2e-5
     with pytest.raises(ValueError, match="refine_decay"):
         refine_lr_at(0, 60, 2e-3, "linear")
 
