@@ -151,6 +151,7 @@ class EvalConfig:
     refine_steps: int  # test-time pose refinement iterations per held-out frame
     refine_lr: float
     refine_decay: str  # "constant" or "cosine" (down to 0 over refine_steps)
+    heldout_pose: str  # "fit" or "interpolated" (training frames' corrections carried over)
     crop_size: PartValues
     far_view_degrees: float
     save_images: int
@@ -159,7 +160,8 @@ class EvalConfig:
 
 # EvalConfig fields the trainer never reads (crop_size it does: the hand loss); the workflow
 # leaves them out of the training rule's params
-EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "refine_decay", "far_view_degrees", "save_images", "max_frames")
+EVAL_ONLY_KEYS = ("refine_steps", "refine_lr", "refine_decay", "heldout_pose", "far_view_degrees",
+                  "save_images", "max_frames")
 
 
 @dataclass

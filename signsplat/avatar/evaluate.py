@@ -11,7 +11,9 @@ Protocol (stated in every row of ``metrics.parquet``):
   do not count); ``raw_gt`` compares against the image as captured, background included.
 - ``part``: ``full`` image, ``left_hand``, ``right_hand``, ``face`` crops centred on the
   projected SMPL-X joints (side = ``crop_size`` x image side).
-- ``refine``: False renders with the given SMPL-X parameters; True first refines the pose of
+- ``heldout_pose``: ``fit`` renders a held-out frame in its input pose; ``interpolated`` adds
+  the fine-tuning corrections of the neighbouring training frames (no test image is used).
+- ``refine``: False renders with that pose; True first refines the pose of
   each held-out frame against that frame's training-camera images with the Gaussians frozen
   (the test-time optimisation of NeuMan-style protocols; betas stay fixed). Both are reported.
 - ``metric``: ``psnr`` (dB), ``ssim``, and ``lpips`` only when LPIPS weights are configured.
@@ -37,6 +39,7 @@ from signsplat.avatar.config import AvatarConfig
 from signsplat.avatar.data import SceneData, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr, ssim
 from signsplat.avatar.model import AvatarModel
+from signsplat.avatar.poses import carry_corrections
 from signsplat.avatar.regions import PART_JOINTS, part_box
 from signsplat.avatar.train import (RasterizeFn, SmplxParams, default_rasterizer, eval_eps2d,
                                     render_gaussians)
@@ -61,7 +64,8 @@ METRICS = register_table(Table(
     },
     extra_columns=True,
     # extra: protocol (str), refine (bool), n_images (int64), background (str 'r,g,b'),
-    # split_rule (str), eval_seconds (float64), smplx_source (str)
+    # split_rule (str), eval_seconds (float64), smplx_source (str), heldout_pose (str: fit |
+    # interpolated, the held-out frames' pose before refinement, signsplat/avatar/poses.py)
 ))
 
 PROTOCOLS = ("bg_replaced", "mask_only", "raw_gt")
@@ -330,9 +334,27 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, body, data: SceneData, va
     if refined is not None and tuple(refined.shape) == tuple(data.viewmats.shape):
         # the cameras the avatar was trained with (train.refine_cameras); unchanged otherwise
         data = dataclasses.replace(data, viewmats=refined.to(data.viewmats))
+    heldout_pose = apply_heldout_pose(smplx, data, state["split"], cfg)
     ev = Evaluator(model, smplx, body, data, cfg, state["split"], rasterize, device)
     per_image = ev.run(image_dir)
     views = per_view(per_image, state["scene"], variant)
     warn_weak_views(views)
-    return summarize(per_image, state["scene"], variant, state["seconds"], cfg,
-                     time.perf_counter() - t0, cfg.train.smplx_source), views
+    metrics = summarize(per_image, state["scene"], variant, state["seconds"], cfg,
+                        time.perf_counter() - t0, cfg.train.smplx_source)
+    metrics["heldout_pose"] = heldout_pose
+    return metrics, views
+
+
+def apply_heldout_pose(smplx: SmplxParams, data: SceneData, split: dict,
+                       cfg: AvatarConfig) -> str:
+    """Set the held-out frames' parameters in ``smplx`` as ``eval.heldout_pose`` asks; returns
+    what was used: ``fit``, or ``interpolated`` (see :mod:`signsplat.avatar.poses`)."""
+    if cfg.eval.heldout_pose == "fit" or not cfg.train.finetune_smplx:
+        return "fit"
+    train = np.isin(np.asarray(data.frames), np.asarray(split["train_frames"]))
+    tuned = {name: getattr(smplx, name).detach() for name in smplx.names}
+    carried = carry_corrections(data.smplx, tuned, data.frames, train)
+    with torch.no_grad():
+        for name, value in carried.items():
+            getattr(smplx, name).copy_(value)
+    return "interpolated"

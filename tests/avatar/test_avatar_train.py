@@ -356,6 +356,42 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
     np.testing.assert_array_equal(a.value.to_numpy(), b.value.to_numpy())
 
 
+def test_held_out_frames_take_the_interpolated_fine_tuning_of_their_neighbours(scene, tmp_path):
+    from signsplat.avatar.evaluate import apply_heldout_pose
+    from signsplat.avatar.poses import interpolation_weights
+    from signsplat.avatar.train import load_avatar
+
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "lr_smplx": 1e-2}))
+    tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
+    model, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
+    train = np.isin(data.frames, state["split"]["train_frames"])
+    assert train.any() and (~train).any()
+    tuned = smplx.body_pose.detach().clone()
+    delta = tuned - data.smplx["body_pose"]
+    assert float(delta[train].abs().max()) > 1e-3  # the fine-tuning moved the training poses
+    assert float(delta[~train].abs().max()) == 0  # and never the held-out ones
+    assert apply_heldout_pose(smplx, data, state["split"], cfg) == "interpolated"
+    w = interpolation_weights(data.frames, train)
+    want = data.smplx["body_pose"] + w @ (delta * torch.as_tensor(train)[:, None])
+    torch.testing.assert_close(smplx.body_pose[~train], want[~train])
+    torch.testing.assert_close(smplx.body_pose[train], tuned[train])
+    # the table says which pose the held-out frames had; "fit" leaves them as fitted
+    df_i, _ = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", None)
+    df_f, _ = evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", None,
+                                  overrides={"heldout_pose": "fit"})
+    assert set(df_i.heldout_pose) == {"interpolated"} and set(df_f.heldout_pose) == {"fit"}
+    sel = (df_i.split == "novel_pose") & (df_i.part == "full") & (df_i.metric == "psnr")
+    assert not np.allclose(df_i[sel].value.to_numpy(), df_f[sel].value.to_numpy())
+    tr = dict(split="train", part="full", metric="psnr", protocol="bg_replaced")
+    pick = [df[(df[list(tr)] == pd.Series(tr)).all(axis=1)].value.item() for df in (df_i, df_f)]
+    assert pick[0] == pick[1]  # training frames render the same either way
+    model, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
+    cfg.train.finetune_smplx = False  # nothing was fine-tuned: nothing to carry
+    assert apply_heldout_pose(smplx, data, state["split"], cfg) == "fit"
+    torch.testing.assert_close(smplx.body_pose, tuned)
+
+
 def test_refinement_learning_rate_schedules():
     from signsplat.avatar.evaluate import refine_lr_at
 
@@ -374,7 +410,7 @@ def test_training_ignores_the_settings_the_workflow_marks_evaluation_only(scene)
 
     assert "refine_steps" in keys and "crop_size" not in keys
     odd = {"refine_steps": 0, "refine_lr": 0.5, "refine_decay": "cosine", "far_view_degrees": 1.0,
-           "save_images": 0, "max_frames": 1}
+           "save_images": 0, "max_frames": 1, "heldout_pose": "fit"}
     assert set(keys) <= set(odd)
     body, data = scene
     runs = []

@@ -120,7 +120,10 @@ def build_results(root: Path, scene: str = "tiny", full: bool = True) -> Path:
                                  value=ssim - 0.01 * (part != "full"), refine=refine))
         m = pd.DataFrame(rows).assign(scene=scene, variant=variant, train_seconds=secs - 5,
                                       protocol="bg_replaced", n_images=4, eval_seconds=5.0,
-                                      smplx_source="fitted")
+                                      smplx_source="fitted", background="1,1,1",
+                                      split_rule="test frames: (frame - 5) % 10 == 0; "
+                                                 "test views: []",
+                                      heldout_pose="interpolated")
         write_table(m, s / "eval" / variant / "metrics.parquet", "avatar_metrics")
         if variant == "demo":  # per camera; camera 2 far below the others
             psnrs = np.array([psnr + 1.0, psnr + 0.5, psnr - 6.0, psnr])

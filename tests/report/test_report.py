@@ -98,6 +98,21 @@ def test_report_has_every_section_and_seconds_beside_every_figure(results_dir, t
     assert "Not available" not in page  # every stage of the fixture is shown
 
 
+def test_avatar_table_states_its_protocol_and_shows_refinement_beside(results_dir, tmp_path):
+    page = write_report(results_dir, tmp_path / "rep" / "index.html").read_text()
+    section = page.split('id="avatar"')[1].split("<section")[0]
+    assert "background replaced by rgb(1,1,1)" in section
+    assert "test frames: (frame - 5) % 10 == 0" in section
+    assert "interpolated from their neighbours" in section and "SMPL-X: fitted" in section
+    assert "psnr refined" in section and "ssim refined" in section
+    # the fixture scores refined frames 1 dB above unrefined: both figures are in the table
+    demo = section.split("tiny / demo: training")[1].split("</table>")[0]
+    head = re.findall(r"<th>([^<]*)</th>", demo)
+    full = next(r for r in re.findall(r"<tr>(.*?)</tr>", demo, re.S) if "<td>full</td>" in r)
+    row = dict(zip(head, re.findall(r"<td>([^<]*)</td>", full)))
+    assert float(row["psnr"]) == 24 and float(row["psnr refined"]) == 25, row
+
+
 def test_report_of_a_partial_run_says_which_stages_did_not_run(tmp_path):
     root = build_results(tmp_path / "results", full=False)
     page = write_report(root, tmp_path / "rep" / "index.html").read_text()
