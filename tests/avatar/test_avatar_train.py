@@ -364,7 +364,7 @@ def test_held_out_frames_take_the_interpolated_fine_tuning_of_their_neighbours(s
     body, data = scene
     tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "lr_smplx": 1e-2}))
     tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
-    model, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
+    _, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
     train = np.isin(data.frames, state["split"]["train_frames"])
     assert train.any() and (~train).any()
     tuned = smplx.body_pose.detach().clone()
@@ -383,10 +383,10 @@ def test_held_out_frames_take_the_interpolated_fine_tuning_of_their_neighbours(s
     assert set(df_i.heldout_pose) == {"interpolated"} and set(df_f.heldout_pose) == {"fit"}
     sel = (df_i.split == "novel_pose") & (df_i.part == "full") & (df_i.metric == "psnr")
     assert not np.allclose(df_i[sel].value.to_numpy(), df_f[sel].value.to_numpy())
-    tr = dict(split="train", part="full", metric="psnr", protocol="bg_replaced")
+    tr = {"split": "train", "part": "full", "metric": "psnr", "protocol": "bg_replaced"}
     pick = [df[(df[list(tr)] == pd.Series(tr)).all(axis=1)].value.item() for df in (df_i, df_f)]
     assert pick[0] == pick[1]  # training frames render the same either way
-    model, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
+    _, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
     cfg.train.finetune_smplx = False  # nothing was fine-tuned: nothing to carry
     assert apply_heldout_pose(smplx, data, state["split"], cfg) == "fit"
     torch.testing.assert_close(smplx.body_pose, tuned)

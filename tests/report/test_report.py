@@ -108,7 +108,7 @@ def test_avatar_table_states_its_protocol_and_shows_refinement_beside(results_di
     # the fixture scores refined frames 1 dB above unrefined: both figures are in the table
     demo = section.split("tiny / demo: training")[1].split("</table>")[0]
     head = re.findall(r"<th>([^<]*)</th>", demo)
-    full = next(r for r in re.findall(r"<tr>(.*?)</tr>", demo, re.S) if "<td>full</td>" in r)
+    full = next(r for r in re.findall(r"<tr>(.*?)</tr>", demo, re.DOTALL) if "<td>full</td>" in r)
     row = dict(zip(head, re.findall(r"<td>([^<]*)</td>", full)))
     assert float(row["psnr"]) == 24 and float(row["psnr refined"]) == 25, row
 
