@@ -18,9 +18,12 @@ def test_profile_sits_under_the_users_values():
     cfg = avatar_config({"profile": "quality", "train": {"iterations": 10}})
     assert cfg.train.iterations == 10  # the user's value
     assert cfg.strategy.max_points == PROFILES["quality"]["strategy"]["max_points"]
-    assert cfg.train.accumulate_poses == PROFILES["quality"]["train"]["accumulate_poses"]
+    assert cfg.strategy.refine_stop == PROFILES["quality"]["strategy"]["refine_stop"]
+    assert avatar_config({"profile": "quality"}).train.iterations == \
+        PROFILES["quality"]["train"]["iterations"]
     demo = avatar_config({})
     assert demo.strategy.max_points != cfg.strategy.max_points
+    assert demo.train.iterations != PROFILES["quality"]["train"]["iterations"]
 
 
 def test_lists_become_tuples_and_parts_dataclasses():
