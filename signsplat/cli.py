@@ -7,8 +7,11 @@ taking the remaining arguments. Modules are imported only when their command run
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import signal
 import sys
+from collections.abc import Iterator
 
 from signsplat.errors import SignSplatError
 
@@ -38,6 +41,32 @@ def _usage() -> str:
     return "\n".join(lines)
 
 
+class Terminated(SystemExit):
+    """Raised in the main thread when the process receives SIGTERM."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated(128 + signum)
+
+
+@contextlib.contextmanager
+def terminate_cleanly() -> Iterator[None]:
+    """Turn SIGTERM into an exception while a command runs, so that ``finally`` blocks and
+    context managers run: a temporary file of ``atomic_path`` is removed instead of left
+    beside its target. Snakemake stops a cancelled job, and SLURM one past its time limit,
+    with SIGTERM. The previous handler is restored afterwards (no-op outside the main thread,
+    where signal handlers cannot be set)."""
+    try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -50,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(COMMANDS[name][0])
     func = getattr(module, name.replace("-", "_"))
     try:
-        return int(func(rest) or 0)
+        with terminate_cleanly():
+            return int(func(rest) or 0)
     except SignSplatError as exc:
         print(f"signsplat {name}: error: {exc}", file=sys.stderr)
         return 2

@@ -37,6 +37,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         raise
 
 
+def is_temporary(path: str | os.PathLike) -> bool:
+    """True for a temporary file of :func:`atomic_path` (``.<name>.<random>.tmp<suffix>``): one
+    a writer still holds, or one a process killed outright (SIGKILL) left behind. Readers that
+    glob a folder skip these."""
+    name = Path(path).name
+    return name.startswith(".") and ".tmp" in name
+
+
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with atomic_path(path) as tmp:

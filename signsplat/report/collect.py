@@ -22,6 +22,8 @@ from pathlib import Path
 import pandas as pd
 import pyarrow.parquet as pq
 
+from signsplat.io.atomic import is_temporary
+
 # Columns of a Snakemake benchmark TSV that the report uses (seconds, CPU time, peak memory).
 BENCH_COLUMNS = ("s", "cpu_time", "max_rss")
 
@@ -66,7 +68,8 @@ def read_parquet(path: Path) -> pd.DataFrame | None:
 
 
 def _pngs(folder: Path, limit: int | None = None) -> list[Path]:
-    files = sorted(folder.glob("*.png")) if folder.is_dir() else []
+    files = sorted(p for p in folder.glob("*.png") if not is_temporary(p)) \
+        if folder.is_dir() else []
     return files[:limit] if limit else files
 
 
@@ -172,5 +175,6 @@ def collect(results: str | Path, repo_scenes: str | Path | None = None,
                                            max_images)
     stitch_tables = [(p, df) for p in sorted(root.rglob("stitch_eval.parquet"))
                      if (df := read_parquet(p)) is not None]
-    videos = sorted(p for p in root.rglob("*.mp4") if "_train" not in p.parts)
+    videos = sorted(p for p in root.rglob("*.mp4")
+                    if "_train" not in p.parts and not is_temporary(p))
     return Results(root, scenes, read_benchmarks(root / "_benchmarks"), stitch_tables, videos)

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from signsplat.io.atomic import atomic_path
+from signsplat.io.atomic import atomic_path, is_temporary
 from signsplat.io.tables import TABLES, TableError, read_table, write_table
 
 
@@ -60,6 +60,37 @@ def test_atomic_path_keeps_old_file_on_failure(tmp_path):
             raise RuntimeError("killed mid-write")
     assert target.read_text() == "old"
     assert list(tmp_path.iterdir()) == [target], "no temporary file left behind"
+
+
+def test_a_terminated_command_leaves_no_temporary_file(tmp_path):
+    # SIGTERM (how Snakemake cancels a job and SLURM ends one past its limit) runs the clean-up
+    # of atomic_path under the CLI's handler; without it the process dies with the file left
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+
+    target = tmp_path / "out.parquet"
+    target.write_text("old")
+    script = textwrap.dedent(f"""
+        import sys, time
+        from signsplat.cli import terminate_cleanly
+        from signsplat.io.atomic import atomic_path, is_temporary
+        with terminate_cleanly():
+            with atomic_path({str(target)!r}) as tmp:
+                tmp.write_text("half written")
+                print("ready", flush=True)
+                time.sleep(60)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    left = [p for p in tmp_path.iterdir() if p != target]
+    assert len(left) == 1 and is_temporary(left[0])  # the writer's temporary file, mid-write
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=30) == 128 + signal.SIGTERM
+    assert target.read_text() == "old"
+    assert list(tmp_path.iterdir()) == [target], "no temporary file left behind"
+    assert not is_temporary(target)
 
 
 def test_every_table_is_documented():

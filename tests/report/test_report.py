@@ -113,6 +113,19 @@ def test_avatar_table_states_its_protocol_and_shows_refinement_beside(results_di
     assert float(row["psnr"]) == 24 and float(row["psnr refined"]) == 25, row
 
 
+def test_temporary_files_of_a_killed_writer_are_not_read(tmp_path):
+    # a writer killed outright (SIGKILL) leaves its atomic_path temporary beside the target:
+    # the report must skip it, not fail on a half-written video or show a half-written image
+    root = build_results(tmp_path / "results")
+    (root / "stitched" / ".hello2.mp4.k3j1.tmp.mp4").write_bytes(b"not a video")
+    images = root / "tiny" / "eval" / "demo" / "images"
+    (images / ".f0004_v01.png.x8d.tmp.png").write_bytes(b"half")
+    res = collect(root)
+    assert [p.name for p in res.stitch_videos] == ["hello.mp4"]
+    assert all(not p.name.startswith(".") for p in res.scenes["tiny"].avatar_images["demo"])
+    assert write_report(root, tmp_path / "rep" / "index.html").is_file()
+
+
 def test_report_of_a_partial_run_says_which_stages_did_not_run(tmp_path):
     root = build_results(tmp_path / "results", full=False)
     page = write_report(root, tmp_path / "rep" / "index.html").read_text()
