@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep snakemake-report
+.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep quality snakemake-report
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -50,6 +50,11 @@ ablations: $(STAMP)
 
 sweep: $(STAMP)
 	$(BIN)/snakemake --cores $(JOBS) sweep
+	$(BIN)/snakemake --cores $(JOBS)
+
+# The avatar's quality profile (longer than the demo: docs/avatar.md), then the report with it.
+quality: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) quality
 	$(BIN)/snakemake --cores $(JOBS)
 
 # Snakemake's own report (captions in workflow/report/) over the finished outputs.

@@ -139,6 +139,21 @@ def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
     assert f"{tmp_path}/studio6/ablations.parquet" in res.stdout
 
 
+def test_dry_run_of_the_quality_target_trains_the_quality_profile_once(tmp_path):
+    from signsplat.avatar.config import PROFILES
+
+    res = snakemake("-n", "-p", "quality", "--config", f"results={tmp_path}")
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert planned_variants(res.stdout, "train_avatar") == {"quality"}
+    assert planned_variants(res.stdout, "evaluate_avatar") == {"quality"}
+    assert f"{tmp_path}/studio6/eval/quality/metrics.parquet" in res.stdout
+    assert "single/avatar/quality" not in res.stdout  # one sequence, the multi-view one
+    # the training job is given the quality profile's settings
+    cmd = next(line for line in res.stdout.splitlines() if "train-avatar" in line)
+    want = PROFILES["quality"]["train"]["iterations"]
+    assert '"profile": "quality"' in cmd and f'"iterations": {want}' in cmd, cmd[:300]
+
+
 def test_dry_run_of_the_sweep_target_plans_the_default_settings(tmp_path):
     res = snakemake("-n", "sweep", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout

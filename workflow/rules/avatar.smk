@@ -11,7 +11,7 @@ from signsplat.avatar.config import EVAL_ONLY_KEYS, resolve as resolve_avatar_co
 from signsplat.config import deep_merge
 from signsplat.report.variants import ablation_plan, sweep_plan, sweep_values
 
-AVATAR_BASE = config.get("avatar", {})
+AVATAR_BASE = USER_CONFIG.get("avatar", {})  # before defaults: profiles apply under it
 AVATAR_VARIANTS = {
     "demo": {"profile": "demo"},
     "quality": {"profile": "quality"},
@@ -186,6 +186,18 @@ rule evaluate_avatar:
         " --cameras {input.cameras:q} --smplx {input.smplx:q} --config-json {params.cfg:q}"
         " --variant {wildcards.variant} --checkpoint {input.checkpoint:q} --out {params.out:q}"
         " > {log} 2>&1"
+
+
+QUALITY_SCENE = study_scene("quality")
+QUALITY_OUTPUTS = expand(
+    [rules.evaluate_avatar.output.metrics, rules.evaluate_avatar.output.views],
+    scene=QUALITY_SCENE, variant="quality")
+
+
+rule quality:
+    localrule: True
+    input:
+        QUALITY_OUTPUTS,
 
 
 FINAL_OUTPUTS.extend(

@@ -1,4 +1,5 @@
 # Config validation and helpers shared by every rule. No science here.
+import copy
 import json
 import os
 import sys
@@ -6,6 +7,10 @@ from pathlib import Path
 
 from signsplat.config import load_sequences, validate
 
+# The config as the user gave it (files and --config), before the schema fills its defaults
+# in: a section with named profiles (avatar) puts the profile under the user's own values
+# only, not under defaults that would hide it.
+USER_CONFIG = copy.deepcopy(config)
 validate(config, "config.schema.yaml", "config/config.yaml")
 
 PY = sys.executable

@@ -91,10 +91,12 @@ rule sweep:
 
 
 def report_inputs(wildcards):
-    """Everything in `all`, plus the study tables once they exist: a later run of `all` after
-    `snakemake ablations` or `snakemake sweep` rewrites the report with them."""
+    """Everything in `all`, plus the study tables and the quality avatar once they exist: a
+    later run of `all` after `snakemake ablations`, `sweep` or `quality` rewrites the report
+    with them."""
     study = expand(rules.ablation_table.output.table, scene=ABLATION_SCENE)
     study += expand(rules.sweep_table.output.table, scene=SWEEP_SCENE)
+    study += QUALITY_OUTPUTS
     return REPORT_INPUTS + [f for f in study if os.path.exists(f)]
 
 
