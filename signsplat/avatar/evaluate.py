@@ -69,6 +69,8 @@ METRICS = register_table(Table(
 ))
 
 PROTOCOLS = ("bg_replaced", "mask_only", "raw_gt")
+
+
 def refine_lr_at(step: int, steps: int, lr: float, decay: str) -> float:
     """Learning rate of test-time refinement step ``step`` of ``steps``: ``lr`` throughout
     (constant) or a half cosine from ``lr`` towards 0 (cosine)."""

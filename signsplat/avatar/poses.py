@@ -20,8 +20,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-HELDOUT_POSE_MODES = ("fit", "interpolated")
-
 
 def interpolation_weights(frames: np.ndarray, known: np.ndarray) -> torch.Tensor:
     """(F, F) matrix W with W[i, j] the weight of frame ``j``'s correction in frame ``i``'s.
@@ -66,16 +64,15 @@ def carry_corrections(fitted: dict[str, torch.Tensor], tuned: dict[str, torch.Te
     such as ``betas`` with one row, are returned tuned and unchanged); ``train``: (F,) bool.
     Non-finite corrections (a frame whose fit had no value) count as zero."""
     train = np.asarray(train, dtype=bool)
-    w = interpolation_weights(frames, train)
+    w = interpolation_weights(frames, train)  # no weight on a held-out frame's own delta
     out = {}
     for name, t in tuned.items():
         f = fitted.get(name)
         if f is None or t.shape[0] != len(frames) or f.shape != t.shape:
             out[name] = t
             continue
-        delta = torch.nan_to_num(t - f.to(t), nan=0.0, posinf=0.0, neginf=0.0)
-        delta = delta * torch.as_tensor(train, device=t.device)[:, None]
-        carried = f.to(t) + w.to(t) @ delta
+        f = f.to(t)
+        delta = torch.nan_to_num(t - f, nan=0.0, posinf=0.0, neginf=0.0)
         keep = torch.as_tensor(train, device=t.device)[:, None]
-        out[name] = torch.where(keep, t, carried)
+        out[name] = torch.where(keep, t, f + w.to(t) @ delta)
     return out

@@ -183,12 +183,14 @@ def _avatar_summary(m: pd.DataFrame) -> pd.DataFrame:
     if "protocol" in d:
         d = d[d["protocol"] == "bg_replaced"]
     refine = d["refine"].astype(bool) if "refine" in d else pd.Series(False, index=d.index)
-    out = d[~refine].pivot_table(index=["split", "part"], columns="metric", values="value",
-                                 aggfunc="mean")
+
+    def table(rows: pd.DataFrame) -> pd.DataFrame:
+        return rows.pivot_table(index=["split", "part"], columns="metric", values="value",
+                                aggfunc="mean")
+
+    out = table(d[~refine])
     if refine.any():
-        ref = d[refine].pivot_table(index=["split", "part"], columns="metric", values="value",
-                                    aggfunc="mean")
-        out = out.join(ref.add_suffix(" refined"), how="left")
+        out = out.join(table(d[refine]).add_suffix(" refined"), how="left")
     out = out.reset_index()
     out.columns.name = None
     return out
@@ -196,18 +198,20 @@ def _avatar_summary(m: pd.DataFrame) -> pd.DataFrame:
 
 def _avatar_protocol(m: pd.DataFrame) -> str:
     """The evaluation protocol the metrics table states: background, split rule, held-out pose."""
+    if not len(m):
+        return ""
+    first = m.iloc[0]
     parts = []
-    if "background" in m and len(m):
-        parts.append(f"background replaced by rgb({m['background'].iloc[0]})")
-    if "split_rule" in m and len(m):
-        parts.append(str(m["split_rule"].iloc[0]))
-    if "heldout_pose" in m and len(m):
-        pose = str(m["heldout_pose"].iloc[0])
-        parts.append("held-out frames posed by the fit" if pose == "fit" else
+    if "background" in first:
+        parts.append(f"background replaced by rgb({first['background']})")
+    if "split_rule" in first:
+        parts.append(str(first["split_rule"]))
+    if "heldout_pose" in first:
+        parts.append("held-out frames posed by the fit" if first["heldout_pose"] == "fit" else
                      "held-out frames posed by the fit plus the training frames' fine-tuning "
                      "interpolated from their neighbours (no test image used)")
-    if "smplx_source" in m and len(m):
-        parts.append(f"SMPL-X: {m['smplx_source'].iloc[0]}")
+    if "smplx_source" in first:
+        parts.append(f"SMPL-X: {first['smplx_source']}")
     return "; ".join(parts)
 
 

@@ -188,10 +188,10 @@ rule evaluate_avatar:
         " > {log} 2>&1"
 
 
+# The files an evaluated avatar variant leaves (expanded over scene and variant).
+AVATAR_EVAL_FILES = [rules.evaluate_avatar.output.metrics, rules.evaluate_avatar.output.views]
 QUALITY_SCENE = study_scene("quality")
-QUALITY_OUTPUTS = expand(
-    [rules.evaluate_avatar.output.metrics, rules.evaluate_avatar.output.views],
-    scene=QUALITY_SCENE, variant="quality")
+QUALITY_OUTPUTS = expand(AVATAR_EVAL_FILES, scene=QUALITY_SCENE, variant="quality")
 
 
 rule quality:
@@ -200,8 +200,5 @@ rule quality:
         QUALITY_OUTPUTS,
 
 
-FINAL_OUTPUTS.extend(
-    expand([rules.evaluate_avatar.output.metrics, rules.evaluate_avatar.output.views],
-           scene=list(SEQUENCES),
-           variant=AVATAR_DEFAULT_VARIANTS)
-)
+FINAL_OUTPUTS.extend(expand(AVATAR_EVAL_FILES, scene=list(SEQUENCES),
+                            variant=AVATAR_DEFAULT_VARIANTS))
