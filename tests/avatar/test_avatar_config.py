@@ -36,3 +36,23 @@ def test_lists_become_tuples_and_parts_dataclasses():
 def test_a_bad_key_is_named():
     with pytest.raises(ConfigError, match="regularise"):
         avatar_config({"regularise": {"enabled": False}})
+
+
+def test_quality_profile_runs_its_measured_predecessor_unchanged_to_step_2400():
+    # The quality figures come from the 2400-step profile resumed to the current length: that
+    # is one uninterrupted run only if every step-dependent schedule agrees up to step 2400.
+    from signsplat.avatar.model import sh_degree_at
+    from signsplat.avatar.train import lr_factor
+
+    now = avatar_config({"profile": "quality"})
+    before = avatar_config({"profile": "quality", "train": {"iterations": 2400},
+                            "sh_schedule": {"rise_at": 0.75}})
+    assert now.train.iterations > 2400
+    for step in range(1, 2401):
+        assert sh_degree_at(step, now.train.iterations, now.model.sh_degree,
+                            now.sh_schedule.rise_at) == \
+            sh_degree_at(step, 2400, before.model.sh_degree, before.sh_schedule.rise_at), step
+        assert lr_factor(step, now.train.iterations, now.train.lr_final_fraction) == \
+            lr_factor(step, 2400, before.train.lr_final_fraction), step
+    assert now.strategy.refine_stop <= 2400 and now.strategy == before.strategy
+    assert now.train.refine_cameras_stop <= 2400
