@@ -21,7 +21,7 @@ SCHEMA = "stages/avatar.schema.yaml"
 # Overrides applied on top of the schema defaults (which are the ``demo`` profile).
 PROFILES: dict[str, dict[str, Any]] = {
     "demo": {},
-    # The demo trained three times as long (3600 steps) with a 90k point cap instead of 60k: on
+    # The demo's settings trained 3600 steps (the demo: 800) with a 90k point cap, not 60k: on
     # fitted SMPL-X the limit is the fitted poses rather than the texture's resolution, so the
     # 12 mm grid stays (docs/avatar.md, "The quality profile"). Densification stops at step
     # 1800 and the SH degree rises there (rise_at 0.5): the profile's measured run is its
