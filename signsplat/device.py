@@ -40,3 +40,13 @@ def set_threads(n: int) -> None:
     except (ImportError, ValueError):
         pass
     torch.set_num_threads(n)
+
+
+def make_deterministic() -> None:
+    """Ask torch for its deterministic kernels (process-wide; only a warning where an op has
+    none). On the CPU the one that matters to the avatar is the backward of gathering vertices
+    with repeated indices (``v[:, anchors]``): by default it accumulates with atomic adds from
+    several threads, so two runs of the same seed differed in the last bits of the SMPL-X
+    gradients, and after 800 steps by 0.2 dB of training PSNR. With this, two runs are the same
+    bit for bit (the rasterizer's backward is deterministic by construction)."""
+    torch.use_deterministic_algorithms(True, warn_only=True)

@@ -44,6 +44,7 @@ from signsplat.avatar.regions import PART_JOINTS, part_box
 from signsplat.avatar.train import (RasterizeFn, SmplxParams, default_rasterizer, eval_eps2d,
                                     render_gaussians)
 from signsplat.avatar.views import per_view, weak_views
+from signsplat.device import make_deterministic
 from signsplat.io.images import write_png
 from signsplat.io.tables import Table, register_table
 
@@ -141,6 +142,7 @@ class Evaluator:
         self.eps2d = eval_eps2d(cfg.train.resolution, data.width)
         self.refine_kept = self.refine_tried = 0  # test-time refinements kept / tried
         self.model.requires_grad_(False)
+        make_deterministic()  # the refinement's gradients, as in training
 
     def render(self, params: dict[str, torch.Tensor], view_i: int):
         out = self.body(**params)

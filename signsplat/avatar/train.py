@@ -36,6 +36,7 @@ from signsplat.avatar.colour_init import initialise_colours, observed_colours, s
 from signsplat.avatar.regularize import Regularizer, displacement_terms
 from signsplat.avatar.strategy import MeshDensifyStrategy
 from signsplat.avatar.upsample import upsample_mesh
+from signsplat.device import make_deterministic
 from signsplat.io.atomic import atomic_path
 from signsplat.render import DEFAULT_EPS2D
 from signsplat.io.tables import Table, register_table
@@ -205,6 +206,7 @@ class AvatarTrainer:
         self.cfg = cfg
         self.device = torch.device(device)
         torch.manual_seed(cfg.train.seed)
+        make_deterministic()
         self.body = body.to(self.device)
         self.data = data
         self.split = make_split(data, cfg)

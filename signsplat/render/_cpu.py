@@ -216,18 +216,14 @@ class _Rasterize(torch.autograd.Function):
         T = _dtype_class(means2d.dtype)
         vr = _np(v_render) if v_render is not None else np.zeros((C, height, width, D), T)
         va = _np(v_alphas)[..., 0] if v_alphas is not None else np.zeros((C, height, width), T)
-        nt = _n_threads(T)
         KK = 8 + D
-        gbuf = np.zeros((nt, C * N, KK), T)
+        gbuf = np.zeros((len(flat_ids), KK), T)  # one row per (tile, Gaussian) intersection
         with numba.parallel_chunksize(1):
             K.raster_bwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
                             width, height, tiles_x, tiles_y, T, out_T, out_last, isect_rows, vr,
-                            va, nt, gbuf, tile_order)
-        if nt > 1:
-            red = np.empty((C * N, KK), T)
-            K.reduce_threads[T](gbuf, red)
-        else:
-            red = gbuf[0]
+                            va, gbuf, tile_order)
+        red = np.zeros((C * N, KK), T)
+        K.reduce_isects(gbuf, flat_ids, red)
         red_t = torch.from_numpy(red)
         v_means2d = red_t[:, 0:2].reshape(C, N, 2)
         v_conics = red_t[:, 2:5].reshape(C, N, 3)

@@ -14,8 +14,11 @@ Parallel layout (``prange``):
 - projection / SH: over (camera, Gaussian) or over Gaussians (backward, to reduce without races);
 - binning: over bands of tile rows, each band scanning the depth-sorted Gaussians;
 - compositing forward and backward: over (camera, tile), dynamic chunks; the backward sums the
-  per-pixel terms of each Gaussian inside the tile and adds the tile's total to a per-thread
-  buffer (``numba.get_thread_id``), reduced afterwards. Nothing per (pixel, Gaussian) is stored.
+  per-pixel terms of each Gaussian inside the tile and writes the tile's total to the row of
+  that (tile, Gaussian) intersection, and the rows are then added up per Gaussian in
+  intersection order, serially: the sums do not depend on which thread took which tile, so
+  gradients are the same bit for bit from run to run and for any thread count. Nothing per
+  (pixel, Gaussian) is stored.
 """
 
 from __future__ import annotations
@@ -1055,15 +1058,17 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
 @kernel_fastmath
 def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, backgrounds,
                has_bg, tile_offsets, flat_ids, N, width, height, tiles_x, tiles_y, T,
-               final_T, last_ids, isect_rows, v_color, v_alpha, n_threads, gbuf, tile_order):
+               final_T, last_ids, isect_rows, v_color, v_alpha, gbuf, tile_order):
     """Back-to-front backward of :func:`raster_fwd`, tile by tile, over the rows where the
     forward composited each Gaussian (``isect_rows``; elsewhere its terms are zero).
 
     Per pixel it keeps the transmittance (recovered as T / (1 - alpha), as gsplat does) and
     Q = sum over the Gaussians behind of w_j <v_C, c_j> plus the background and alpha terms, so
     dL/dalpha_i = T_i <v_C, c_i> - Q / (1 - alpha_i). The per-pixel terms of each Gaussian are
-    summed inside the tile and added to ``gbuf[thread, flat_id, :]`` =
-    (v_mx, v_my, v_conic_a, v_conic_b, v_conic_c, v_opacity, v_color[0..D), |v_mx|, |v_my|).
+    summed inside the tile and written to ``gbuf[j, :]``, j the intersection's index in
+    ``flat_ids`` (one tile owns each j, so no two threads write a row) =
+    (v_mx, v_my, v_conic_a, v_conic_b, v_conic_c, v_opacity, v_color[0..D), |v_mx|, |v_my|);
+    :func:`reduce_isects` adds the rows up per Gaussian.
     Compiled with ``reassoc`` so these sums vectorise (this only reorders additions).
     """
     D = v_color.shape[3]
@@ -1074,7 +1079,6 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     nf = _B_VC + max(D, 4)
     for k_ in prange(C * n_tiles):
         tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
-        th = numba.get_thread_id()
         start = tile_offsets[tid]
         end = tile_offsets[tid + 1]
         if end <= start:
@@ -1200,36 +1204,32 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
                         s += buf[_OB_W + p] * buf[ok + p]
                     vcol[k] += s
             if touched:
-                gb = gbuf[th, fi]
-                gb[0] += g_mx
-                gb[1] += g_my
-                gb[2] += g_ca
-                gb[3] += g_cb
-                gb[4] += g_cc
-                gb[5] += g_op
-                gb[6] += v0
+                gb = gbuf[j]
+                gb[0] = g_mx
+                gb[1] = g_my
+                gb[2] = g_ca
+                gb[3] = g_cb
+                gb[4] = g_cc
+                gb[5] = g_op
+                gb[6] = v0
                 if D > 1:
-                    gb[7] += v1
+                    gb[7] = v1
                 if D > 2:
-                    gb[8] += v2
+                    gb[8] = v2
                 if D > 3:
-                    gb[9] += v3
+                    gb[9] = v3
                 for k in range(4, D):
-                    gb[6 + k] += vcol[k]
-                gb[6 + D] += a_mx
-                gb[7 + D] += a_my
+                    gb[6 + k] = vcol[k]
+                gb[6 + D] = a_mx
+                gb[7 + D] = a_my
 
 
-@kernel
-def reduce_threads(gbuf, out):
-    """out[i, :] = sum over threads of gbuf[:, i, :]."""
-    nt = gbuf.shape[0]
-    n = gbuf.shape[1]
-    K = gbuf.shape[2]
-    for i_ in prange(n):
-        i = np.int64(i_)  # prange indices may be unsigned
+@njit(cache=True)
+def reduce_isects(gbuf, flat_ids, out):
+    """out[i, :] = sum of gbuf[j, :] over the intersections j of flat id i, in the order of j
+    (serial, so the sum is the same for any thread count; ``out`` starts at zero)."""
+    K = gbuf.shape[1]
+    for j in range(gbuf.shape[0]):
+        i = flat_ids[j]
         for k in range(K):
-            s = gbuf[0, i, k]
-            for t in range(1, nt):
-                s += gbuf[t, i, k]
-            out[i, k] = s
+            out[i, k] += gbuf[j, k]

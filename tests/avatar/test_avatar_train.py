@@ -441,3 +441,13 @@ def test_a_camera_far_below_the_others_is_named_in_a_warning(caplog):
     assert warn_weak_views(table([26.0, 18.0])).empty
     assert warn_weak_views(table([])).empty
     assert not caplog.records
+
+
+def test_trainer_asks_torch_for_deterministic_kernels(scene):
+    body, data = scene
+    torch.use_deterministic_algorithms(False)
+    try:
+        AvatarTrainer(body, data, _cfg(train={"iterations": 1, "color_init": "constant"}))
+        assert torch.are_deterministic_algorithms_enabled()
+    finally:
+        torch.use_deterministic_algorithms(False)

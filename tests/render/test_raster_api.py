@@ -233,3 +233,36 @@ def test_package_exports():
     assert callable(R.rasterization)
     assert R.BACKENDS == ("auto", "cpu", "reference", "gsplat")
     assert "EWA" in R.__doc__ and "1/255" in R.__doc__
+
+
+def _cpu_grads(s: dict, threads: int) -> dict:
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        leaf = leafs(s, keys=("means", "quats", "scales", "opacities", "colors"))
+        rc, ra, meta = rasterization(**leaf, backgrounds=torch.ones(s["viewmats"].shape[0], 3),
+                                     backend="cpu", absgrad=True)
+        w = torch.linspace(-1, 1, rc.numel()).reshape(rc.shape)
+        ((rc * w).sum() + ra.sum()).backward()
+    finally:
+        numba.set_num_threads(before)
+    out = {k: leaf[k].grad for k in ("means", "quats", "scales", "opacities", "colors")}
+    out["absgrad"] = meta["means2d"].absgrad
+    return out
+
+
+def test_cpu_gradients_are_the_same_for_any_thread_count_and_run():
+    # The backward's sums per Gaussian must not depend on which thread took which tile: large
+    # Gaussians spanning many tiles, two cameras, repeated runs on two threads and one on one.
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("Numba has one thread here (NUMBA_NUM_THREADS=1): nothing to compare")
+    s = scene(N=600, W=96, H=80, C=2, seed=7, scale=(0.05, 0.2))
+    one = _cpu_grads(s, 1)
+    for _ in range(3):
+        two = _cpu_grads(s, 2)
+        for k in one:
+            assert torch.equal(one[k], two[k]), k
