@@ -54,5 +54,5 @@ def test_make_deterministic_makes_the_avatars_vertex_gather_backward_reproducibl
         "assert all(torch.equal(ref, grad()) for _ in range(5))\n"
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=300)
+                         timeout=300, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
