@@ -47,6 +47,7 @@ def make_deterministic() -> None:
     none). On the CPU the one that matters to the avatar is the backward of gathering vertices
     with repeated indices (``v[:, anchors]``): by default it accumulates with atomic adds from
     several threads, so two runs of the same seed differed in the last bits of the SMPL-X
-    gradients, and after 800 steps by 0.2 dB of training PSNR. With this, two runs are the same
-    bit for bit (the rasterizer's backward is deterministic by construction)."""
+    gradients, and after 800 steps by 0.2 dB of training PSNR. With this (and the rasterizer's
+    backward, deterministic by construction) two 2-thread runs agree for the first steps but
+    not yet for all: a third source remains (docs/avatar.md, "Reproducibility")."""
     torch.use_deterministic_algorithms(True, warn_only=True)
