@@ -48,6 +48,7 @@ def make_deterministic() -> None:
     with repeated indices (``v[:, anchors]``): by default it accumulates with atomic adds from
     several threads, so two runs of the same seed differed in the last bits of the SMPL-X
     gradients, and after 800 steps by 0.2 dB of training PSNR. With this (and the rasterizer's
-    backward, deterministic by construction) two 2-thread runs agree for the first steps but
-    not yet for all: a third source remains (docs/avatar.md, "Reproducibility")."""
+    backward, deterministic by construction) two 2-thread trainings of the demo wrote identical
+    checkpoints after 300 steps (docs/avatar.md, "Reproducibility", which also records one
+    earlier probe that parted at step 12 and was not seen again)."""
     torch.use_deterministic_algorithms(True, warn_only=True)
