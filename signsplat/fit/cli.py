@@ -371,7 +371,7 @@ def fit(argv: list[str]) -> int:
     """Entry point of ``signsplat fit`` (see the module docstring)."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    from signsplat.device import select_device
+    from signsplat.device import make_deterministic, select_device
 
     try:
         cfg_in = json.loads(args.config_json)
@@ -379,6 +379,9 @@ def fit(argv: list[str]) -> int:
         raise InputError(f"--config-json: not valid JSON ({exc})") from None
     cfg = validate(cfg_in, "stages/fit.schema.yaml", "--config-json")
     torch.set_num_threads(max(1, args.threads))
+    # like the avatar's training: on more than one thread the backward of a gather with
+    # repeated indices otherwise adds with atomics, so two fits of the same input could differ
+    make_deterministic()
     device = select_device(args.device)
     t0 = time.perf_counter()
     c0 = time.process_time()
