@@ -58,6 +58,8 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=2)
     p.add_argument("--at-once", action="store_true", help="start the runs together")
     args = p.parse_args()
+    if args.runs < 2 or args.steps < 1 or args.threads < 1:
+        p.error("--runs must be at least 2, --steps and --threads at least 1")
 
     res = ROOT / args.results
     seq = res / args.scene
