@@ -25,6 +25,7 @@ import pandas as pd
 import torch
 
 from signsplat.config import validate
+from signsplat.device import make_deterministic
 from signsplat.errors import InputError, SignSplatError
 from signsplat.fit import data as D
 from signsplat.fit import evaluate as E
@@ -133,6 +134,9 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     from signsplat.fit.multiview import fit_multiview
     from signsplat.fit.singleview import fit_singleview
 
+    # like the avatar's trainer, so every caller gets it: on more than one thread the backward
+    # of a gather with repeated indices otherwise adds with atomics, and two fits could differ
+    make_deterministic()
     frames_df = D.read_frames(frames) if frames else None
     if calibration:
         rig_cal, scene_cam = D.read_rig(calibration, with_extrinsics=False)
@@ -371,7 +375,7 @@ def fit(argv: list[str]) -> int:
     """Entry point of ``signsplat fit`` (see the module docstring)."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    from signsplat.device import make_deterministic, select_device
+    from signsplat.device import select_device
 
     try:
         cfg_in = json.loads(args.config_json)
@@ -379,9 +383,6 @@ def fit(argv: list[str]) -> int:
         raise InputError(f"--config-json: not valid JSON ({exc})") from None
     cfg = validate(cfg_in, "stages/fit.schema.yaml", "--config-json")
     torch.set_num_threads(max(1, args.threads))
-    # like the avatar's training: on more than one thread the backward of a gather with
-    # repeated indices otherwise adds with atomics, so two fits of the same input could differ
-    make_deterministic()
     device = select_device(args.device)
     t0 = time.perf_counter()
     c0 = time.process_time()
