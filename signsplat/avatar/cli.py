@@ -1,4 +1,4 @@
-"""``signsplat train-avatar`` and ``signsplat evaluate``: thin wrappers over the library.
+"""``signsplat train-avatar`` and ``signsplat evaluate-avatar``: thin wrappers over the library.
 
 train-avatar writes ``checkpoint.pt`` (resumable, atomic), ``avatar.ply`` (3DGS PLY) and
 ``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet``, ``views.parquet``
@@ -93,11 +93,11 @@ def export_ply(trainer, path: Path) -> Path:
                               g.colors[0], cfg.model.sh_degree)
 
 
-def evaluate(argv: list[str]) -> int:
+def evaluate_avatar(argv: list[str]) -> int:
     from signsplat.avatar.evaluate import evaluate_checkpoint
     from signsplat.io.tables import write_table
 
-    p = argparse.ArgumentParser(prog="signsplat evaluate", description=__doc__)
+    p = argparse.ArgumentParser(prog="signsplat evaluate-avatar", description=__doc__)
     _common(p)
     p.add_argument("--checkpoint", required=True)
     args = p.parse_args(argv)

@@ -4,8 +4,8 @@ Reproducible: scene specs, sample order and augmentation come from fixed seeds; 
 is a number of steps (not wall time). Long runs use one torch thread per model so that the
 segmenter and the keypoint model train side by side on two cores.
 
-- :func:`training_scene_specs`: varied synthetic scenes (shape, appearance, cameras, motion,
-  effects), seeds disjoint from the evaluation scenes.
+- The training scenes are simulated by :mod:`signsplat.synth.training_set` and passed in as
+  folders (``signsplat simulate-training-set``).
 - :func:`train_segmenter` / :func:`train_keypoints`: train a :mod:`~signsplat.perception.nets`
   model on a :class:`~signsplat.perception.data.FrameSet` and export it to ONNX.
 """
@@ -26,8 +26,13 @@ import torch.nn.functional as F
 
 from signsplat.perception import data as D
 from signsplat.perception.contracts import RTM_MEAN, RTM_STD
-from signsplat.perception.nets import (HAND_SLICES, CascadeSimCC, TinySegmenter,
-                                      count_parameters, export_onnx)
+from signsplat.perception.nets import (
+    HAND_SLICES,
+    CascadeSimCC,
+    TinySegmenter,
+    count_parameters,
+    export_onnx,
+)
 
 SEG_MEAN = (127.5, 127.5, 127.5)
 SEG_STD = (127.5, 127.5, 127.5)
@@ -83,75 +88,6 @@ class TrainConfig:
             if key in d:
                 d[key] = tuple(d[key])
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
-
-
-def training_scene_specs(count: int, seed: int, glosses: list[str],
-                         letters: list[str] | tuple = ()) -> list[dict]:
-    """``count`` scene specs (scene schema) drawn from a seeded generator.
-
-    Seeds, signer shapes and appearance seeds start at 1000 (the evaluation scenes in
-    config/scenes use small seeds and their own appearance seeds). The cameras vary around the
-    simulator's framing (upper body, 30 degree field of view at 2 m): count, arc, distance,
-    height, target and field of view; signs are mixed with fingerspelled letters (about half
-    the scenes spell 2-4 ``letters`` between signs, for the many hand shapes); lighting
-    (direction, ambient, intensity, colour), background, sensor noise, motion blur, occluders
-    and camera jitter are drawn from the simulator's effect registry.
-    """
-    rng = np.random.default_rng(10_000 + seed)
-    specs = []
-    for i in range(count):
-        n_gloss = int(rng.integers(2, 5))
-        chosen = [str(g) for g in rng.choice(glosses, size=min(n_gloss, len(glosses)),
-                                             replace=False)]
-        if letters and rng.random() < 0.5:
-            spelled = [str(c) for c in rng.choice(list(letters), size=int(rng.integers(2, 5)))]
-            at = int(rng.integers(0, len(chosen) + 1))
-            chosen = chosen[:at] + spelled + chosen[at:]
-        ring = rng.random() < 0.1
-        light = {"direction": [round(float(v), 3) for v in
-                               (rng.uniform(-0.8, 0.8), rng.uniform(0.0, 1.0),
-                                rng.uniform(0.4, 1.0))],
-                 "ambient": round(float(rng.uniform(0.2, 0.5)), 3),
-                 "intensity": round(float(rng.uniform(0.5, 1.0)), 3),
-                 "color": [round(float(v), 3) for v in rng.uniform(0.85, 1.15, 3)]}
-        effects: list = [{"lighting": light}]
-        if rng.random() < 0.5:
-            effects.append({"background": {"kind": "solid",
-                                           "color": [round(float(c), 3)
-                                                     for c in rng.uniform(0.05, 0.95, 3)]}})
-        else:
-            effects.append({"background": {"kind": "textured", "seed": int(1000 + i)}})
-        if rng.random() < 0.6:
-            effects.append({"sensor_noise": {"sigma": round(float(rng.uniform(0.003, 0.03)), 4)}})
-        for name, p in (("motion_blur", 0.3), ("occluder", 0.25), ("camera_jitter", 0.3)):
-            if rng.random() < p:
-                effects.append(name)
-        specs.append({
-            "name": f"train{i:03d}",
-            "seed": int(1000 + i),
-            "fps": 25,
-            "max_frames": 50,
-            "cameras": {
-                "count": int(rng.integers(2, 4)),
-                "layout": "ring" if ring else "arc",
-                "arc_degrees": round(float(rng.uniform(30, 170)), 1),
-                "distance": round(float(rng.uniform(1.75, 2.3)), 3),
-                "height": round(float(rng.uniform(1.25, 1.45)), 3),
-                "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
-                           round(float(rng.uniform(1.25, 1.4)), 3), 0.0],
-                "width": 256,
-                "height_px": 256,
-                "fov_degrees": round(float(rng.uniform(26, 36)), 1),
-            },
-            "signer": {
-                "betas": [round(float(b), 3) for b in rng.normal(0, 0.8, 10)],
-                "appearance_seed": int(1000 + i),
-                "expression_scale": round(float(rng.uniform(0.5, 1.5)), 2),
-            },
-            "motion": {"glosses": chosen, "hold_frames": int(rng.integers(0, 4))},
-            "effects": effects,
-        })
-    return specs
 
 
 def _progress(step: int, total: int, t0: float, max_minutes: float | None) -> float:

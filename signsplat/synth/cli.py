@@ -58,3 +58,27 @@ def gloss_library(argv: list[str]) -> int:
     write_gloss_library(args.out, seed=int(cfg["seed"]), fps=float(cfg["fps"]))
     print(f"wrote gloss library {args.out}")
     return 0
+
+
+def simulate_training_set(argv: list[str]) -> int:
+    """``signsplat simulate-training-set --count N --seed S --body NPZ --glosses PARQUET
+    --out-dir DIR``: the detector training scenes, one ``DIR/<name>/sim`` folder each."""
+    parser = argparse.ArgumentParser(prog="signsplat simulate-training-set",
+                                     description="Simulate the detector training scenes.")
+    parser.add_argument("--count", type=int, required=True, help="number of scenes")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the scene specs")
+    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
+    parser.add_argument("--glosses", required=True, help="gloss library Parquet")
+    parser.add_argument("--out-dir", required=True, help="folder for the scene folders")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    args = parser.parse_args(argv)
+    if args.count < 2:
+        parser.error(f"--count must be >= 2 (training and held-out scenes), got {args.count}")
+
+    from signsplat.synth.training_set import simulate_training_set as run
+
+    dirs = run(args.count, args.seed, args.body, args.glosses, args.out_dir, args.threads,
+               progress=not args.no_progress)
+    print(f"{len(dirs)} training scenes in {args.out_dir}")
+    return 0

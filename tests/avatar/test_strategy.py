@@ -1,12 +1,12 @@
 """Density control on the mesh: growth on adjacent faces, the point cap, pruning by subsampling."""
 
 import torch
+from avatar_scenes import rig
 
-from conftest import rig
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.model import POINT_PARAMS, face_normals
 from signsplat.avatar.strategy import MeshDensifyStrategy
-from signsplat.avatar.train import build_model
 from signsplat.render import rasterization
 
 

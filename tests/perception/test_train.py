@@ -5,26 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from signsplat.perception import data as D
-from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
-                                            load_segmenter)
-from signsplat.perception.train import (TrainConfig, train_keypoints, train_segmenter,
-                                        training_scene_specs)
-
-
-def test_training_scene_specs_are_valid_varied_and_reproducible():
-    from signsplat.config import validate
-    from signsplat.synth.scene import check_scene
-
-    names = ["HELLO", "BOOK", "HOUSE", "NAME", "WHAT", "FRIEND"]
-    a, b = training_scene_specs(6, 0, names), training_scene_specs(6, 0, names)
-    assert a == b
-    assert training_scene_specs(6, 1, names) != a
-    for spec in a:
-        validate(spec, "scene.schema.yaml", spec["name"])
-        check_scene(spec, spec["name"])
-    assert len({s["signer"]["appearance_seed"] for s in a}) == 6
-    assert len({s["cameras"]["distance"] for s in a}) == 6
-    assert all(s["seed"] >= 1000 for s in a)  # disjoint from the evaluation scenes' seeds
+from signsplat.perception.contracts import (
+    KeypointSpec,
+    SegmenterSpec,
+    load_keypointer,
+    load_segmenter,
+)
+from signsplat.perception.train import TrainConfig, train_keypoints, train_segmenter
 
 
 def test_keypoint_samples_and_targets(tmp_path, scene_factory):

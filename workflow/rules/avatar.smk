@@ -182,7 +182,7 @@ rule evaluate_avatar:
         mem_mb=4000,
         runtime=60,
     shell:
-        "{PY} -m signsplat evaluate --body {input.body:q} --frames {input.frames:q}"
+        "{PY} -m signsplat evaluate-avatar --body {input.body:q} --frames {input.frames:q}"
         " --cameras {input.cameras:q} --smplx {input.smplx:q} --config-json {params.cfg:q}"
         " --variant {wildcards.variant} --checkpoint {input.checkpoint:q} --out {params.out:q}"
         " > {log} 2>&1"

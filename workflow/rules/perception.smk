@@ -91,10 +91,32 @@ rule perception_eval:
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
 
 
-rule train_detectors:
+rule simulate_training_set:
     input:
         body=rules.body_model.output[0],
         glosses=rules.gloss_library.output[0],
+    output:
+        directory(f"{RESULTS}/_train/perception/scenes"),
+    params:
+        count=PERCEPTION["train"]["scenes"],
+        seed=PERCEPTION["train"]["seed"],
+    log:
+        f"{RESULTS}/_logs/simulate_training_set.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/simulate_training_set.tsv"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    shell:
+        "{PY} -m signsplat simulate-training-set --count {params.count} --seed {params.seed}"
+        " --body {input.body} --glosses {input.glosses} --out-dir {output} --threads {threads}"
+        " --no-progress > {log} 2>&1"
+
+
+rule train_detectors:
+    input:
+        scenes=rules.simulate_training_set.output[0],
     output:
         segmenter=f"{RESULTS}/_train/perception/models/segmenter.onnx",
         keypoints=f"{RESULTS}/_train/perception/models/keypoints.onnx",
@@ -111,7 +133,7 @@ rule train_detectors:
         mem_mb=12000,
         runtime=240,
     shell:
-        "{PY} -m signsplat train-detectors --body {input.body} --glosses {input.glosses}"
+        "{PY} -m signsplat train-detectors --sim-dirs {input.scenes}/*/sim"
         " --work {params.work} --out-dir {params.work}/models --config-json {params.cfg:q}"
         " --threads {threads} > {log} 2>&1"
 
