@@ -38,11 +38,17 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     res = snakemake("-n", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     counts = job_counts(res.stdout)
-    default = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
-    assert counts["body_model"] == 1 and counts["gloss_library"] == 1
-    assert counts["simulate"] >= 2  # studio6 and single at least
-    assert counts["all"] == 1
-    assert default["results"] == "results"
+    # the sheet's two synthetic sequences (studio6: 6 cameras, single: 1): one chain each,
+    # COLMAP only for the multi-view one, one stitching job for all sentences, one report
+    per_sequence = ("simulate", "segment", "detect_keypoints", "perception_eval", "fit_smplx",
+                    "train_avatar", "evaluate_avatar")
+    assert counts == {"body_model": 1, "gloss_library": 1, "colmap_compare": 1,
+                      "stitch_video": 1, "report": 1, "all": 1, "total": 20,
+                      **{rule: 2 for rule in per_sequence}}
+    # every output of the plan is under the results folder the command line gave
+    outputs = re.findall(r"^    output: (.+)$", res.stdout, re.M)
+    assert outputs and all(o.startswith(str(tmp_path)) for line in outputs
+                           for o in line.split(", ") if not o.startswith("reports/"))
 
 
 def test_dry_run_rejects_an_unknown_effect(tmp_path):
@@ -211,7 +217,15 @@ def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path):
     for _, row in sweep.iterrows():
         bench = results / "_benchmarks" / "tiny" / f"train_avatar_{row.setting}.tsv"
         assert row.seconds == pytest.approx(pd.read_csv(bench, sep="\t")["s"].mean())
-    assert sweep.pareto_psnr.any() and np.isfinite(sweep.psnr).all()
+    assert np.isfinite(sweep.psnr).all() and np.isfinite(sweep.seconds).all()
+    # the front flags of the table's own (seconds, score) pairs: on it unless another setting
+    # is no slower and no worse, and better in one
+    for score in ("psnr", "ssim"):
+        for _, row in sweep.iterrows():
+            others = sweep[sweep.setting != row.setting]
+            beaten = ((others.seconds <= row.seconds) & (others[score] >= row[score])
+                      & ((others.seconds < row.seconds) | (others[score] > row[score]))).any()
+            assert row[f"pareto_{score}"] == (not beaten), (score, row.setting)
     assert (results / "tiny" / "sweep.png").stat().st_size > 5000
     # the stitched video of the trained avatar, its 2D baseline and table
     ev = pd.read_parquet(stitched)

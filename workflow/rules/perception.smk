@@ -98,7 +98,7 @@ rule simulate_training_set:
     output:
         directory(f"{RESULTS}/_train/perception/scenes"),
     params:
-        count=PERCEPTION["train"]["scenes"],
+        scenes=PERCEPTION["train"]["scenes"],
         seed=PERCEPTION["train"]["seed"],
     log:
         f"{RESULTS}/_logs/simulate_training_set.log",
@@ -109,7 +109,7 @@ rule simulate_training_set:
         mem_mb=4000,
         runtime=240,
     shell:
-        "{PY} -m signsplat simulate-training-set --count {params.count} --seed {params.seed}"
+        "{PY} -m signsplat simulate-training-set --count {params.scenes} --seed {params.seed}"
         " --body {input.body} --glosses {input.glosses} --out-dir {output} --threads {threads}"
         " --no-progress > {log} 2>&1"
 
