@@ -18,7 +18,7 @@ FLOORS = [
     {"render", "body", "motion"},
     {"synth", "perception", "fit", "colmap", "avatar"},
     {"stitch", "report"},
-    {"cli", "__init__"},
+    {"cli", "plan", "__init__"},
     {"__main__"},
 ]
 FLOOR = {name: i for i, names in enumerate(FLOORS) for name in names}

@@ -74,6 +74,19 @@ def switch_values(resolved: dict) -> dict:
     return out
 
 
+def ablation_columns(rows: dict[str, dict], variants: dict[str, dict]) -> dict[str, dict]:
+    """Row label -> its variant and switch columns of ``ablations.parquet``, from the rows
+    ``{label: {"variant": name, ...}}`` and the resolved configs ``{name: avatar section}``.
+    The SMPL-X source is not among them: the table reads what each variant trained on from
+    its metrics."""
+    out = {}
+    for label, row in rows.items():
+        switches = switch_values(variants[row["variant"]])
+        switches.pop("smplx_source")
+        out[label] = {"variant": row["variant"], **switches}
+    return out
+
+
 def sweep_plan(base: dict, axes: dict[str, list[int]]) -> list[Planned]:
     """The sweep points: the centre (demo profile + ``base``) and, for every axis in ``axes``
     (iterations, resolution, max_points), one point per listed value with only that value

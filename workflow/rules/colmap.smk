@@ -3,7 +3,6 @@
 # Synthetic multi-view scenes only: errors are measured against the simulator's cameras.
 
 COLMAP_CFG = config.get("colmap", {})
-COLMAP_SCENES = [s for s in SCENES if num_views(s) > 1]
 
 
 rule colmap_compare:
@@ -36,5 +35,3 @@ rule colmap_compare:
         " --config-json {params.cfg:q} --out {output.table:q} --ply {output.ply:q}"
         " --ply-dir {output.runs:q} --threads {threads} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.colmap_compare.output.table, scene=COLMAP_SCENES))

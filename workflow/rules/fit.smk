@@ -92,5 +92,3 @@ rule fit_smplx:
         " --num-expression {params.expr} --device {params.device} --threads {threads}"
         " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.fit_smplx.output.eval, scene=list(SEQUENCES)))

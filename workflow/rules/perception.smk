@@ -137,6 +137,3 @@ rule train_detectors:
         " --work {params.work} --out-dir {params.work}/models --config-json {params.cfg:q}"
         " --threads {threads} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.detect_keypoints.output.keypoints, scene=list(SEQUENCES)))
-FINAL_OUTPUTS.extend(expand(rules.perception_eval.output[0], scene=list(SCENES)))

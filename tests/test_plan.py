@@ -1,0 +1,99 @@
+"""signsplat.plan: what a run does, decided from its config (no Snakemake needed)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+from signsplat.avatar.config import EVAL_ONLY_KEYS
+from signsplat.config import ConfigError, validate
+from signsplat.plan import fit_mode, plan
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _config(tmp_path, sheet_rows=None, **over):
+    user = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    user.update(over)
+    if sheet_rows is not None:
+        sheet = tmp_path / "sequences.tsv"
+        sheet.write_text("sequence\tsource\tspec\tcameras\n" + "".join(
+            "\t".join(r) + "\n" for r in sheet_rows))
+        user["sequences"] = str(sheet)
+    return validate(copy.deepcopy(user), "config.schema.yaml"), user
+
+
+def test_default_config_plans_the_demo_studies_and_the_default_scene(tmp_path):
+    cfg, user = _config(tmp_path)
+    p = plan(cfg, user, root=ROOT)
+    assert list(p.sequences) == ["studio6", "single"]
+    assert p.default_scene == p.ablation_scene == p.sweep_scene == p.quality_scene == "studio6"
+    assert p.multiview_scenes == ["studio6"]
+    assert p.fit_mode("studio6") == "multiview" and p.fit_mode("single") == "singleview"
+    assert {"demo", "quality"} <= set(p.variants)
+    assert p.variants["quality"]["train"]["iterations"] > p.variants["demo"]["train"]["iterations"]
+    # one row per switch plus the SMPL-X source row; every row a known, distinct variant
+    assert list(p.ablations)[0] == "full" and len(p.ablations) == 6
+    assert len({r["variant"] for r in p.ablations.values()}) == 6
+    assert p.sweep["demo"]["swept"] == "demo"
+    # the sweep's centre is the ablations' "w/o regularisation" row (same resolved config)
+    centre = [v for v, vals in p.sweep.items() if vals["swept"] == "centre"]
+    assert centre == [p.ablations["w/o regularisation"]["variant"]]
+
+
+def test_equal_resolved_configs_are_one_variant(tmp_path):
+    """With an empty ablation base the full model minus regularisation is the demo profile
+    (which leaves regularisation off): the row points at `demo`, trained once."""
+    cfg, user = _config(tmp_path, ablations={"scene": None, "base": {}})
+    p = plan(cfg, user, root=ROOT)
+    assert p.ablations["w/o regularisation"]["variant"] == "demo"
+    assert "abl_no_reg" not in p.variants
+    assert p.ablations["full"]["variant"] == "abl_full"
+
+
+def test_the_user_avatar_section_is_under_every_variant(tmp_path):
+    cfg, user = _config(tmp_path, avatar={"train": {"log_every": 7}})
+    p = plan(cfg, user, root=ROOT)
+    assert {v["train"]["log_every"] for v in p.variants.values()} == {7}
+
+
+def test_sections_for_training_and_evaluation(tmp_path):
+    cfg, user = _config(tmp_path)
+    p = plan(cfg, user, root=ROOT)
+    train = p.train_section("demo", "studio6")
+    assert not set(EVAL_ONLY_KEYS) & set(train["eval"])
+    sweep_point = next(v for v in p.sweep if v != "demo" and
+                       p.variants[v]["train"]["resolution"] not in (0,))
+    assert p.eval_section(sweep_point, "studio6")["train"]["resolution"] == 0
+    assert p.eval_section("quality", "studio6")["train"]["resolution"] == \
+        p.variants["quality"]["train"]["resolution"]
+
+
+def test_footage_runs_fitted_and_names_what_is_wrong(tmp_path):
+    cfg, user = _config(tmp_path, sheet_rows=[("clip", "video", "", "a.mp4"),
+                                              ("solo", "synthetic", "config/scenes/single.yaml", "")])
+    p = plan(cfg, user, root=ROOT)
+    assert p.videos == {"clip": p.sequences["clip"]} and list(p.scenes) == ["solo"]
+    assert p.default_scene == "solo"  # no multi-view scene: the first synthetic one
+    assert p.smplx_source("demo", "clip") == "fitted"
+    gt = next(r["variant"] for r in p.ablations.values()
+              if p.variants[r["variant"]]["train"]["smplx_source"] == "ground_truth")
+    with pytest.raises(ConfigError, match=rf"{gt}.*'clip' is footage.*allowed here: fitted"):
+        p.smplx_source(gt, "clip")
+
+
+def test_a_study_on_an_unknown_sequence_names_the_key_and_the_choices(tmp_path):
+    cfg, user = _config(tmp_path, sweep={"scene": "nowhere", "base": {}, "iterations": [],
+                                         "resolution": [], "max_points": []})
+    with pytest.raises(ConfigError, match=r"sweep.scene = 'nowhere'.*\['single', 'studio6'\]"):
+        plan(cfg, user, root=ROOT)
+
+
+def test_fit_mode():
+    assert fit_mode(6) == "multiview" and fit_mode(1) == "singleview"
+    assert fit_mode(6, "singleview") == "singleview" and fit_mode(1, "multiview") == "multiview"
+    with pytest.raises(ConfigError, match="fit.mode"):
+        fit_mode(2, "stereo")
