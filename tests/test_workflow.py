@@ -98,7 +98,7 @@ def tiny_study_config(tmp_path, **extra) -> Path:
             {"name": "body", "iterations": 5, "lr": 0.03, "groups": ["root", "body", "betas"]}]}},
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,
-                             "log_every": 2, "threads": 1, "checkpoint_every": 50},
+                             "log_every": 2, "checkpoint_every": 50},
                    "eval": {"refine_steps": 0, "save_images": 2},
                    "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 4}},
         # (merged over config/config.yaml's sections: the default bases' other keys stay)

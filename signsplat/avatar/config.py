@@ -145,7 +145,6 @@ class TrainConfig:
     checkpoint_every: int
     log_every: int
     seed: int
-    threads: int
     render_backend: str
     ply_frame: int  # -1 = export the canonical rest pose; otherwise this frame's pose
     smplx_source: str

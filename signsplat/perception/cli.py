@@ -11,6 +11,7 @@ from multiprocessing import get_context
 from pathlib import Path
 
 from signsplat.config import validate
+from signsplat.device import add_runtime_args
 from signsplat.io.tables import write_table
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
 
@@ -23,26 +24,28 @@ def perception_config(text: str | None) -> dict:
     return validate(data, SCHEMA, "--config-json")
 
 
-def specs(cfg: dict) -> tuple[SegmenterSpec, KeypointSpec]:
-    """Model specs from a validated ``perception`` section."""
+def specs(cfg: dict, device: str = "auto") -> tuple[SegmenterSpec, KeypointSpec]:
+    """Model specs from a validated ``perception`` section, run on ``device``."""
     s, k = cfg["segmenter"], cfg["keypoints"]
     seg = SegmenterSpec(
         path=s["model"], input_size=tuple(s["input_size"]) if s["input_size"] else None,
         mean=tuple(s["mean"]), std=tuple(s["std"]), color_order=s["color_order"],
-        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"])
+        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"],
+        device=device)
     kp = KeypointSpec(
         path=k["model"], input_size=tuple(k["input_size"]) if k["input_size"] else None,
         mean=tuple(k["mean"]), std=tuple(k["std"]), color_order=k["color_order"],
         split_ratio=float(k["split_ratio"]), padding=float(k["padding"]),
-        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"])
+        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"],
+        device=device)
     return seg, kp
 
 
 def _parser(prog: str, doc: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"signsplat {prog}", description=doc)
     p.add_argument("--config-json", default=None, help="the perception config section (JSON)")
-    p.add_argument("--threads", type=int, default=None, help="override perception.threads")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_runtime_args(p)
     return p
 
 
@@ -54,8 +57,8 @@ def segment(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, _ = specs(cfg)
-    threads = a.threads or cfg["threads"]
+    seg, _ = specs(cfg, a.device)
+    threads = a.threads
     from signsplat.perception.stages import segment_sequence, timings_table
 
     report = segment_sequence(a.frames, a.out_dir, seg, threads, cfg["skip_bad_frames"],
@@ -77,8 +80,8 @@ def detect_keypoints(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    _, kp = specs(cfg)
-    threads = a.threads or cfg["threads"]
+    _, kp = specs(cfg, a.device)
+    threads = a.threads
     from signsplat.perception.stages import detect_sequence, timings_table
 
     report = detect_sequence(a.frames, a.masks, a.out, kp, threads, cfg["skip_bad_frames"],
@@ -99,12 +102,12 @@ def perception_eval(argv: list[str]) -> int:
     p.add_argument("--timings", nargs="*", default=[], help="part=timings.parquet ...")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, kp = specs(cfg)
+    seg, kp = specs(cfg, a.device)
     from signsplat.perception.evaluate import evaluate_scene, format_table
 
     timing_paths = dict(t.split("=", 1) for t in a.timings)
     df = evaluate_scene(a.sim_dir, a.perception_dir, a.out, seg, kp,
-                        a.threads or cfg["threads"], cfg["eval"]["speed_frames"], timing_paths)
+                        a.threads, cfg["eval"]["speed_frames"], timing_paths)
     print(format_table(df))
     return 0
 
@@ -142,7 +145,7 @@ def train_detectors(argv: list[str]) -> int:
 
     tcfg = TrainConfig.from_dict(cfg["train"])
     work, out_dir = Path(a.work), Path(a.out_dir)
-    threads = a.threads or cfg["threads"]
+    threads = a.threads
     sim_dirs = [str(d) for d in a.sim_dirs]
     missing = [d for d in sim_dirs if not (Path(d) / "frames.parquet").is_file()]
     if missing:

@@ -71,8 +71,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-baseline", action="store_true", help="skip the 2D baseline video")
     parser.add_argument("--eval", default=None,
                         help="stitch_eval table path (default OUT/stitch_eval.parquet)")
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--threads", type=int, default=2)
+    from signsplat.device import add_runtime_args
+
+    add_runtime_args(parser)
     return parser
 
 
@@ -149,7 +150,7 @@ class _VideoStage:
 
         from signsplat.body.keypoints import WholeBodyRegressor
         from signsplat.body.model import BodyModel
-        from signsplat.device import select_device, set_threads
+        from signsplat.device import use_runtime
         from signsplat.stitch.animate import (
             AvatarRenderer,
             choose_camera,
@@ -157,8 +158,7 @@ class _VideoStage:
         )
 
         logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-        set_threads(args.threads)
-        device = select_device(args.device)
+        device = use_runtime(args)
         body = BodyModel.from_file(args.body).to(device)
         background = cfg.get("background")
         self.renderer = AvatarRenderer.from_checkpoint(

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from signsplat.config import validate
+from signsplat.device import add_runtime_args
 from signsplat.errors import InputError
 
 
@@ -24,7 +25,7 @@ def simulate(argv: list[str]) -> int:
     parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
     parser.add_argument("--glosses", default=None, help="gloss library Parquet")
     parser.add_argument("--out", required=True, help="output folder (results/<scene>/sim)")
-    parser.add_argument("--threads", type=int, default=1)
+    add_runtime_args(parser, gpu=False)
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     args = parser.parse_args(argv)
 
@@ -70,7 +71,7 @@ def simulate_training_set(argv: list[str]) -> int:
     parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
     parser.add_argument("--glosses", required=True, help="gloss library Parquet")
     parser.add_argument("--out-dir", required=True, help="folder for the scene folders")
-    parser.add_argument("--threads", type=int, default=1)
+    add_runtime_args(parser, gpu=False)
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     args = parser.parse_args(argv)
     if args.count < 2:

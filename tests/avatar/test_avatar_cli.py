@@ -22,7 +22,7 @@ CFG = {
     "model": {"scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}, "hidden": 8,
               "sh_degree": 1},
     "train": {"iterations": 4, "test_interval": 3, "test_offset": 2, "log_every": 1,
-              "checkpoint_every": 2, "threads": 1, "smplx_source": "ground_truth"},
+              "checkpoint_every": 2, "smplx_source": "ground_truth"},
     "eval": {"refine_steps": 1, "save_images": 1,
              "crop_size": {"body": 0.0, "head": 0.4, "hands": 0.4}},
 }

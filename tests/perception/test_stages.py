@@ -72,7 +72,6 @@ def test_corrupt_and_missing_images_name_the_file_and_keep_other_outputs(models,
 
 def test_cli_stages_and_eval_table(models, fake_scene, tmp_path, capsys):
     cfg = json.dumps({
-        "threads": 1,
         "segmenter": {"model": str(models["bright_seg"]), "input_size": [64, 64]},
         "keypoints": {"model": str(models["tiny_kp"])},
         "eval": {"speed_frames": 4},

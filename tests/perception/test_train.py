@@ -58,7 +58,7 @@ def test_train_detectors_command_on_given_scenes(tmp_path, scene_factory):
 
     dirs = [scene_factory(tmp_path, name=f"s{i}", views=1, frames=3, size=64, seed=i)
             for i in range(3)]
-    cfg = {"threads": 1, "train": {**TINY, "seg_steps": 3, "seg_full_steps": 2,
+    cfg = {"train": {**TINY, "seg_steps": 3, "seg_full_steps": 2,
                                    "kp_steps": 3, "kp_finetune_steps": 2, "kp_hand_steps": 2,
                                    "val_scenes": 1},
            "segmenter": {"input_size": [64, 64]}}

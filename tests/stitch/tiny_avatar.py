@@ -20,7 +20,7 @@ AVATAR_CFG = {
     "upsample": {"max_rounds": 0},
     "model": {"hidden": 8, "sh_degree": 0,
               "scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}},
-    "train": {"iterations": 1, "accumulate_poses": 1, "threads": 1, "log_every": 1,
+    "train": {"iterations": 1, "accumulate_poses": 1, "log_every": 1,
               "smplx_source": "ground_truth", "test_interval": 100, "test_offset": 99},
 }
 FAST = StitchConfig(min_transition=3, max_transition=6, hold_start=1, hold_end=1)

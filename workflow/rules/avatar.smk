@@ -50,6 +50,7 @@ rule train_avatar:
         "{PY} -m signsplat train-avatar --body {input.body:q} --frames {input.frames:q}"
         " --cameras {input.cameras:q} --smplx {input.smplx:q} --config-json {params.cfg:q}"
         " --variant {wildcards.variant} --out {params.out:q} --resume --no-progress"
+        " --threads {threads} --device {DEVICE}"
         " > {log} 2>&1"
 
 
@@ -78,6 +79,7 @@ rule evaluate_avatar:
         "{PY} -m signsplat evaluate-avatar --body {input.body:q} --frames {input.frames:q}"
         " --cameras {input.cameras:q} --smplx {input.smplx:q} --config-json {params.cfg:q}"
         " --variant {wildcards.variant} --checkpoint {input.checkpoint:q} --out {params.out:q}"
+        " --threads {threads} --device {DEVICE}"
         " > {log} 2>&1"
 
 

@@ -15,10 +15,10 @@ USER_CONFIG = copy.deepcopy(config)
 validate(config, "config.schema.yaml", "config/config.yaml")
 
 PY = sys.executable
-# GNU OpenMP's default spin-wait makes torch's and Numba's thread pools fight over the cores
-# (2 threads ran 2-3x slower than 1 on a 2-core machine); short spins for every stage.
-os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 RESULTS = config["results"]
+# Every stage with a GPU path gets `--device {DEVICE}`; every stage `--threads {threads}`, its
+# rule's own threads (the one place a thread count is set; a profile's set-threads changes it).
+DEVICE = config["device"]
 # What this run does (signsplat.plan): sequences, the default scene, avatar variants.
 PLAN = plan(config, USER_CONFIG)
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)

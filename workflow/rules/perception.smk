@@ -35,7 +35,8 @@ rule segment:
         runtime=30,
     shell:
         "{PY} -m signsplat segment --frames {input.frames} --out-dir {params.out}"
-        " --config-json {params.cfg:q} --threads {threads} --timings {output.timings}"
+        " --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
+        " --timings {output.timings}"
         " > {log} 2>&1"
 
 
@@ -60,6 +61,7 @@ rule detect_keypoints:
     shell:
         "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
         " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
+        " --device {DEVICE}"
         " --timings {output.timings} > {log} 2>&1"
 
 
@@ -87,7 +89,7 @@ rule perception_eval:
         runtime=15,
     shell:
         "{PY} -m signsplat perception-eval --sim-dir {params.sim} --perception-dir {params.out}"
-        " --out {output} --config-json {params.cfg:q} --threads {threads}"
+        " --out {output} --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
 
 

@@ -58,6 +58,7 @@ rule stitch_video:
         "{PY} -m signsplat sign {params.sentences} {params.ids} --library {input.library:q}"
         " --out {params.out:q} --config-json {params.cfg:q} --avatar {input.checkpoint:q}"
         " --body {input.body:q} --cameras {input.cameras:q} --threads {threads}"
+        " --device {DEVICE}"
         " --eval {output.eval:q} > {log} 2>&1"
 
 
