@@ -44,3 +44,8 @@ def read_mask(path: str | os.PathLike) -> np.ndarray:
     if mask is None:
         raise InputError(f"{path}: not a readable mask image")
     return mask > 127
+
+
+def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
+    """Write a bool or 0/1 (H,W) mask as a 0/255 PNG, atomically."""
+    return write_png(path, np.where(mask, 255, 0).astype(np.uint8))

@@ -11,7 +11,7 @@ from signsplat.errors import InputError
 from signsplat.io.tables import read_table
 from signsplat.perception.cli import detect_keypoints, perception_eval, segment
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
-from signsplat.perception.images import read_mask
+from signsplat.io.images import read_mask
 from signsplat.perception.stages import detect_sequence, segment_sequence
 
 
