@@ -170,7 +170,7 @@ class Evaluator:
 
         Adam moves every free parameter by about ``refine_lr`` per step whatever its gradient,
         so from a pose that is already right (ground-truth SMPL-X) the refinement can drift away
-        (measured on studio6: 29.0 dB before, 23.7 dB after). The refined pose is therefore kept
+        (docs/avatar.md). The refined pose is therefore kept
         only if its image loss summed over ``views`` is lower than the starting pose's."""
         params = self.frame_params(frame_i)
         start = {k: v.clone() for k, v in params.items()}

@@ -93,8 +93,8 @@ def eval_eps2d(train_resolution: int, width: int) -> float:
     """Dilation for rendering at ``width`` an avatar trained at ``train_resolution`` (0 =
     native). The 0.3 px^2 dilation of training is part of what the avatar learned: trained at
     128 px it covers four times the world-space area of 0.3 px^2 at 256 px, and its Gaussians
-    shrink to rely on it. Rendered at 256 px with 0.3 they leave holes (measured on studio6:
-    17.6 dB). Keeping the dilation's world-space footprint keeps what was learned."""
+    shrink to rely on it; rendered at 256 px with 0.3 they leave holes. Keeping the dilation's
+    world-space footprint keeps what was learned."""
     if train_resolution <= 0:
         return DEFAULT_EPS2D
     return DEFAULT_EPS2D * (width / train_resolution) ** 2
