@@ -89,13 +89,7 @@ class CompareConfig:
     num_static_frames: int
     sequence_frames: int
     settings: tuple[Setting, ...]
-    max_num_features: int
-    min_num_matches: int
-    init_min_num_inliers: int
-    init_min_tri_angle: float
-    abs_pose_min_num_inliers: int
-    abs_pose_min_inlier_ratio: float
-    min_model_size: int
+    mapper: dict  # the base SIFT and mapper thresholds, by MAPPER_KEYS name
     seed: int
     isolate: bool
     timeout_seconds: float
@@ -113,21 +107,21 @@ class CompareConfig:
         names = [st.name for st in cfg["settings"]]
         if len(set(names)) != len(names):
             raise InputError(f"{source}: setting names must be unique, got {names}")
+        cfg["mapper"] = {k: cfg.pop(k) for k in MAPPER_KEYS}
         return cls(**cfg)
 
     def options(self, setting: Setting, threads: int) -> ColmapOptions:
         """The options of one run: the base thresholds, then the setting's overrides."""
-        base = {k: getattr(self, k) for k in MAPPER_KEYS}
-        base.update(dict(setting.overrides))
         return ColmapOptions(
             known_intrinsics=setting.known_intrinsics, num_threads=threads, seed=self.seed,
             max_runtime_seconds=self.max_runtime_seconds, isolate=self.isolate,
-            timeout_seconds=self.timeout_seconds, **base,
+            timeout_seconds=self.timeout_seconds, **{**self.mapper, **dict(setting.overrides)},
         )
 
     def describe(self) -> dict:
-        """Plain-data copy (for table metadata)."""
-        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        """Plain-data copy in the config's layout (for table metadata)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "mapper"}
+        d.update(self.mapper)
         d["settings"] = [{"name": st.name, "known_intrinsics": st.known_intrinsics,
                           **dict(st.overrides)} for st in self.settings]
         return d

@@ -37,8 +37,18 @@ def _html(argv: list[str]) -> int:
     return 0
 
 
+def _write(df, a, table: str) -> None:
+    """A study table to ``--out`` (Parquet) and ``--tsv`` when given, and on the console."""
+    from signsplat.report.runs import write_parquet, write_tsv
+
+    write_parquet(df, Path(a.out), table)
+    if a.tsv:
+        write_tsv(df, Path(a.tsv))
+    print(df.to_string(index=False))
+
+
 def _ablations(argv: list[str]) -> int:
-    from signsplat.report.runs import ablation_table, ssim_finding, write_parquet, write_tsv
+    from signsplat.report.runs import ablation_table, ssim_finding
 
     p = argparse.ArgumentParser(prog="signsplat report ablations")
     p.add_argument("--results", required=True)
@@ -48,17 +58,14 @@ def _ablations(argv: list[str]) -> int:
     p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
-    write_parquet(df, Path(a.out), "ablations")
-    if a.tsv:
-        write_tsv(df, Path(a.tsv))
-    print(df.to_string(index=False))
+    _write(df, a, "ablations")
     print(ssim_finding(df))
     return 0
 
 
 def _sweep(argv: list[str]) -> int:
     from signsplat.report.plots import accuracy_vs_time
-    from signsplat.report.runs import sweep_table, write_parquet, write_tsv
+    from signsplat.report.runs import sweep_table
 
     p = argparse.ArgumentParser(prog="signsplat report sweep")
     p.add_argument("--results", required=True)
@@ -72,11 +79,8 @@ def _sweep(argv: list[str]) -> int:
     p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
-    write_parquet(df, Path(a.out), "sweep")
-    if a.tsv:
-        write_tsv(df, Path(a.tsv))
+    _write(df, a, "sweep")
     accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)
-    print(df.to_string(index=False))
     return 0
 
 

@@ -17,16 +17,22 @@ def _json_arg(text: str, what: str):
         raise InputError(f"{what}: not valid JSON ({exc})") from None
 
 
+def _simulator_parser(prog: str, description: str, glosses_required: bool):
+    """The options of the simulating commands: the body, the gloss library, threads."""
+    parser = argparse.ArgumentParser(prog=f"signsplat {prog}", description=description)
+    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
+    parser.add_argument("--glosses", required=glosses_required, default=None,
+                        help="gloss library Parquet")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    add_runtime_args(parser, gpu=False)
+    return parser
+
+
 def simulate(argv: list[str]) -> int:
     """``signsplat simulate --scene-json JSON --body NPZ --glosses PARQUET --out DIR``."""
-    parser = argparse.ArgumentParser(prog="signsplat simulate",
-                                     description="Render a synthetic signer scene.")
+    parser = _simulator_parser("simulate", "Render a synthetic signer scene.", False)
     parser.add_argument("--scene-json", required=True, help="scene spec (validated) as JSON")
-    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
-    parser.add_argument("--glosses", default=None, help="gloss library Parquet")
     parser.add_argument("--out", required=True, help="output folder (results/<scene>/sim)")
-    add_runtime_args(parser, gpu=False)
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     args = parser.parse_args(argv)
 
     from signsplat.synth.simulate import simulate_scene
@@ -64,15 +70,11 @@ def gloss_library(argv: list[str]) -> int:
 def simulate_training_set(argv: list[str]) -> int:
     """``signsplat simulate-training-set --count N --seed S --body NPZ --glosses PARQUET
     --out-dir DIR``: the detector training scenes, one ``DIR/<name>/sim`` folder each."""
-    parser = argparse.ArgumentParser(prog="signsplat simulate-training-set",
-                                     description="Simulate the detector training scenes.")
+    parser = _simulator_parser("simulate-training-set", "Simulate the detector training scenes.",
+                               True)
     parser.add_argument("--count", type=int, required=True, help="number of scenes")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene specs")
-    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
-    parser.add_argument("--glosses", required=True, help="gloss library Parquet")
     parser.add_argument("--out-dir", required=True, help="folder for the scene folders")
-    add_runtime_args(parser, gpu=False)
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     args = parser.parse_args(argv)
     if args.count < 2:
         parser.error(f"--count must be >= 2 (training and held-out scenes), got {args.count}")
