@@ -108,10 +108,12 @@ def deep_merge(base: dict, over: dict) -> dict:
 def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>") -> Any:
     """Validate ``data`` against ``workflow/schemas/<schema_name>``; fill defaults in place.
 
-    Raises :class:`ConfigError` naming the source, key, bad value and what is allowed.
+    ``schema_name`` may name a part of a schema file with a JSON pointer, e.g.
+    ``stages/fit.schema.yaml#/$defs/stage``. Raises :class:`ConfigError` naming the source,
+    key, bad value and what is allowed.
     """
     registry = _registry()
-    schema = registry.contents(schema_name)
+    schema = {"$ref": schema_name} if "#" in schema_name else registry.contents(schema_name)
     validator = _Validator(schema, registry=registry)
     errors = sorted(validator.iter_errors(data), key=lambda e: list(e.absolute_path))
     if errors:
@@ -124,6 +126,35 @@ def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>"
             lines.append(_describe(best if best.absolute_path else err))
         raise ConfigError(f"{source}: " + "; ".join(dict.fromkeys(lines)))
     return data
+
+
+def default_mismatches(cls: type, section: dict) -> list[str]:
+    """Fields of the dataclass ``cls`` whose code default differs from the validated config
+    ``section`` (e.g. ``validate({}, schema)["robust"]``): one line per field naming both
+    values. Fields without a code default, and code defaults of keys the section does not
+    have, are not compared (the section is the one home of a default)."""
+    import dataclasses
+
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.name not in section:
+            continue
+        if f.default is not dataclasses.MISSING:
+            code = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            code = f.default_factory()
+        else:
+            continue
+        if code != section[f.name]:
+            out.append(f"{cls.__name__}.{f.name}: code default {code!r}, schema "
+                       f"{section[f.name]!r}")
+    return out
+
+
+def assert_defaults_match(cls: type, section: dict) -> None:
+    """Raise AssertionError listing :func:`default_mismatches` (for tests)."""
+    bad = default_mismatches(cls, section)
+    assert not bad, "; ".join(bad)
 
 
 def load_config(path: str | os.PathLike) -> dict:
