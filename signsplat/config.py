@@ -108,10 +108,12 @@ def deep_merge(base: dict, over: dict) -> dict:
 def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>") -> Any:
     """Validate ``data`` against ``workflow/schemas/<schema_name>``; fill defaults in place.
 
-    Raises :class:`ConfigError` naming the source, key, bad value and what is allowed.
+    ``schema_name`` may name a part of a schema file with a JSON pointer, e.g.
+    ``stages/fit.schema.yaml#/$defs/stage``. Raises :class:`ConfigError` naming the source,
+    key, bad value and what is allowed.
     """
     registry = _registry()
-    schema = registry.contents(schema_name)
+    schema = {"$ref": schema_name} if "#" in schema_name else registry.contents(schema_name)
     validator = _Validator(schema, registry=registry)
     errors = sorted(validator.iter_errors(data), key=lambda e: list(e.absolute_path))
     if errors:
@@ -162,6 +164,12 @@ def default_mismatches(cls: type, defaults: dict, rename: dict[str, str] | None 
         if plain(code) != plain(defaults[key]):
             out.append(f"{cls.__name__}.{f.name}: code {code!r}, schema {defaults[key]!r}")
     return out
+
+
+def assert_defaults_match(cls: type, section: dict, rename: dict[str, str] | None = None) -> None:
+    """Raise AssertionError listing :func:`default_mismatches` (for tests)."""
+    bad = default_mismatches(cls, section, rename)
+    assert not bad, "; ".join(bad)
 
 
 def load_config(path: str | os.PathLike) -> dict:

@@ -17,22 +17,12 @@ from typing import Any
 from signsplat.avatar.config import EVAL_ONLY_KEYS
 from signsplat.avatar.config import resolve as resolve_avatar
 from signsplat.config import ConfigError, deep_merge, load_sequences
+from signsplat.fit.mode import fit_mode
 from signsplat.report.variants import ablation_plan, sweep_plan, sweep_values
 
 #: The variants `rule all` trains (the quality profile is asked for by `snakemake quality`).
 DEFAULT_VARIANTS = ("demo",)
 PROFILE_VARIANTS = {"demo": {"profile": "demo"}, "quality": {"profile": "quality"}}
-
-
-def fit_mode(num_views: int, mode: str = "auto") -> str:
-    """``multiview`` or ``singleview``: config ``fit.mode``, or with ``auto`` from the number
-    of cameras (more than one: multi-view)."""
-    if mode == "auto":
-        return "multiview" if num_views > 1 else "singleview"
-    if mode not in ("multiview", "singleview"):
-        raise ConfigError(f"fit.mode: value {mode!r} is not allowed; must be one of 'auto', "
-                          "'multiview', 'singleview'")
-    return mode
 
 
 @dataclass
@@ -76,8 +66,9 @@ class Plan:
         camera, else the first synthetic one, else the first sequence."""
         return (self.multiview_scenes or list(self.scenes) or list(self.sequences) or [None])[0]
 
-    def fit_mode(self, sequence: str, mode: str = "auto") -> str:
-        return fit_mode(self.num_views(sequence), mode)
+    def fit_mode(self, sequence: str, fit_config: dict) -> str:
+        """``multiview`` or ``singleview`` (:func:`signsplat.fit.mode.fit_mode`)."""
+        return fit_mode(fit_config, self.num_views(sequence))
 
     def smplx_source(self, variant: str, sequence: str) -> str:
         """Where a variant's SMPL-X and cameras come from on a sequence: ``fitted`` (the fit

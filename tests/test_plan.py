@@ -10,7 +10,7 @@ import yaml
 
 from signsplat.avatar.config import EVAL_ONLY_KEYS
 from signsplat.config import ConfigError, validate
-from signsplat.plan import fit_mode, plan
+from signsplat.plan import plan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,8 @@ def test_default_config_plans_the_demo_studies_and_the_default_scene(tmp_path):
     assert list(p.sequences) == ["studio6", "single"]
     assert p.default_scene == p.ablation_scene == p.sweep_scene == p.quality_scene == "studio6"
     assert p.multiview_scenes == ["studio6"]
-    assert p.fit_mode("studio6") == "multiview" and p.fit_mode("single") == "singleview"
+    assert p.fit_mode("studio6", cfg["fit"]) == "multiview"
+    assert p.fit_mode("single", cfg["fit"]) == "singleview"
     assert {"demo", "quality"} <= set(p.variants)
     assert p.variants["quality"]["train"]["iterations"] > p.variants["demo"]["train"]["iterations"]
     # one row per switch plus the SMPL-X source row; every row a known, distinct variant
@@ -90,10 +91,3 @@ def test_a_study_on_an_unknown_sequence_names_the_key_and_the_choices(tmp_path):
                                          "resolution": [], "max_points": []})
     with pytest.raises(ConfigError, match=r"sweep.scene = 'nowhere'.*\['single', 'studio6'\]"):
         plan(cfg, user, root=ROOT)
-
-
-def test_fit_mode():
-    assert fit_mode(6) == "multiview" and fit_mode(1) == "singleview"
-    assert fit_mode(6, "singleview") == "singleview" and fit_mode(1, "multiview") == "multiview"
-    with pytest.raises(ConfigError, match="fit.mode"):
-        fit_mode(2, "stereo")

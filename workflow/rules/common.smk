@@ -50,10 +50,6 @@ def scene_spec(wildcards):
     return as_json(SCENES[wildcards.scene])
 
 
-def num_views(scene):
-    return SEQUENCES[scene]["num_views"]
-
-
 def input_dir(scene):
     """Folder holding a sequence's frames.parquet and images (simulated or extracted)."""
     return f"{RESULTS}/{scene}/sim" if scene in SCENES else f"{RESULTS}/{scene}/frames"
