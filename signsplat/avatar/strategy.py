@@ -32,7 +32,7 @@ from signsplat.avatar.model import POINT_BUFFERS, POINT_PARAMS, AvatarModel
 @dataclass
 class MeshDensifyStrategy:
     """Densification and pruning of mesh-anchored Gaussians; every knob a field, its default
-    the avatar schema's (``strategy`` section; tests/test_defaults.py keeps them equal)."""
+    the avatar schema's (``strategy`` section; tests/test_config_defaults.py keeps them equal)."""
 
     grad_threshold: float = 0.0002
     refine_start: int = 100
