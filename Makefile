@@ -40,8 +40,10 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
+# The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
+# pytest prints its time and the slowest tests at the end.
 test: $(STAMP) chromium
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15
 
 bench-rasterizer: $(STAMP)
 	$(BIN)/python benchmarks/bench_rasterizer.py
