@@ -33,6 +33,9 @@ parts nested in them):
 A densification event (prune + grow, every ``refine_every`` steps up to ``refine_stop``) is
 timed once at the end and reported on its own (``densify_event``), not inside the step.
 
+``--variant NAME=JSON`` adds runs of this checkout with other config overrides (e.g.
+``--variant "vertices={\"model\": {\"pose_net_on\": \"vertices\"}}"``).
+
 ``--baseline PATH`` runs the same benchmark against another checkout (e.g. ``git worktree add
 /tmp/base <commit>``) in the same run: the two alternate (ABBA order over the rounds), and the
 summary prints baseline / current ratios per part. The worker processes import ``signsplat`` from
@@ -380,12 +383,17 @@ def git_commit(path: Path) -> str:
         return "unknown"
 
 
-def run_worker(code: Path, args, points: int, threads: int) -> dict:
+def run_worker(code: Path, args, points: int, threads: int, extra: dict | None = None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(code))
+    config = json.loads(args.config_json)
+    if extra:
+        from signsplat.config import deep_merge
+
+        config = deep_merge(config, extra)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--code", str(code),
            "--results", str(Path(args.results).resolve()), "--scene", args.scene,
            "--points", str(points), "--threads", str(threads), "--steps", str(args.steps),
-           "--warmup", str(args.warmup), "--config-json", args.config_json]
+           "--warmup", str(args.warmup), "--config-json", json.dumps(config)]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(code))
     if proc.returncode != 0:
         raise SystemExit(f"worker failed ({code}, {points} points, {threads} threads):\n"
@@ -440,10 +448,12 @@ def print_table(agg, labels: list[str], column: str = "seconds") -> list[str]:
         lines.append(head)
         cols = "".join(f"{lab + ' fwd':>14}{lab + ' bwd':>14}{lab + ' all':>14}"
                        for lab in labels)
-        ratio = "  base/current" if len(labels) == 2 else ""
+        base = "baseline" if "baseline" in labels else None
+        others = [lab for lab in labels if lab != base] if base else []
+        ratio = "".join(f"{'base/' + lab:>16}" for lab in others)
         lines.append(f"  {'part':<20}{cols}{ratio}")
         for part in order:
-            cells, totals = "", []
+            cells, totals = "", {}
             present = False
             for lab in labels:
                 s = sub[(sub.code == lab) & (sub.part == part)].set_index("phase")[column]
@@ -451,13 +461,14 @@ def print_table(agg, labels: list[str], column: str = "seconds") -> list[str]:
                 b = s.get("backward", float("nan"))
                 t = s.get("total", float("nan"))
                 present |= bool(len(s))
-                totals.append(t)
+                totals[lab] = t
                 cells += "".join(f"{x * 1e3:14.1f}" if x == x else f"{'-':>14}" for x in (f, b, t))
             if not present:
                 continue
             r = ""
-            if len(labels) == 2 and totals[1] == totals[1] and totals[1] > 0:
-                r = f"{totals[0] / totals[1]:14.2f}"
+            for lab in others:
+                t = totals[lab]
+                r += f"{totals[base] / t:16.2f}" if t == t and t > 0 else f"{'-':>16}"
             lines.append(f"  {part:<20}{cells}{r}")
     lines.append("(milliseconds; median over rounds of each round's median step; parts exclusive "
                  "of nested ones; 'other' = instrumented step minus the parts)")
@@ -477,6 +488,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--baseline", default=None, help="another checkout to compare against")
     ap.add_argument("--config-json", default="{}", help="avatar config overrides (both codes)")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
+                    help="also run this checkout with these config overrides (repeatable)")
     ap.add_argument("--out", default=str(OUT / "avatar_step.parquet"))
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--code", default=str(ROOT), help=argparse.SUPPRESS)
@@ -487,9 +500,15 @@ def main(argv=None) -> int:
         return 0
 
     codes = [("current", ROOT)]
+    extras: dict[str, dict] = {}
+    for v in args.variant:
+        name, _, cfg = v.partition("=")
+        codes.append((name, ROOT))
+        extras[name] = json.loads(cfg)
     if args.baseline:
         codes.append(("baseline", Path(args.baseline).resolve()))
-    commits = {lab: git_commit(path) for lab, path in codes}
+    commits = {lab: git_commit(path) + (f" {json.dumps(extras[lab])}" if lab in extras else "")
+               for lab, path in codes}
     load_before = os.getloadavg()
     print(f"avatar step benchmark: {platform.machine()}, {os.cpu_count()} cores, load "
           f"{load_before[0]:.1f}; codes " + ", ".join(f"{lab} {commits[lab]} ({path})"
@@ -501,7 +520,7 @@ def main(argv=None) -> int:
             for thr in args.threads:
                 order = codes if rnd % 2 == 0 else codes[::-1]
                 for lab, path in order:
-                    r = run_worker(path, args, pts, thr)
+                    r = run_worker(path, args, pts, thr, extras.get(lab))
                     r.update(label=lab, commit=commits[lab], points_asked=pts, round=rnd)
                     rows.append(r)
                     print(f"  round {rnd} {lab:<8} {r['points']} points {thr} thread(s): step "
