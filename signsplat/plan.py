@@ -18,7 +18,8 @@ from signsplat.avatar.config import EVAL_ONLY_KEYS
 from signsplat.avatar.config import resolve as resolve_avatar
 from signsplat.config import ConfigError, deep_merge, load_sequences
 from signsplat.fit.mode import fit_mode
-from signsplat.report.variants import ablation_plan, sweep_plan, sweep_values
+from signsplat.report.variants import (ablation_plan, regularizer_plan, sweep_plan,
+                                       sweep_values)
 
 #: The variants `rule all` trains (the quality profile is asked for by `snakemake quality`).
 DEFAULT_VARIANTS = ("demo",)
@@ -34,8 +35,10 @@ class Plan:
     variant_overrides: dict[str, dict] = field(default_factory=dict)
     #: variant name -> resolved avatar section (schema defaults, profile, overrides)
     variants: dict[str, dict] = field(default_factory=dict)
-    #: ablation row label -> {"variant": name, "overrides": {...}} (rows in table order)
-    ablations: dict[str, dict] = field(default_factory=dict)
+    #: ablation rows in table order: {"label", "iterations", "variant", "overrides"}
+    ablations: list[dict] = field(default_factory=list)
+    #: the regulariser's weight sweep: {"scale", "iterations", "variant"}
+    regularizer: list[dict] = field(default_factory=list)
     #: sweep variant -> the values shown beside its scores
     sweep: dict[str, dict] = field(default_factory=dict)
     ablation_scene: str | None = None
@@ -137,13 +140,7 @@ def plan(config: dict, user_config: dict | None = None, root: str = ".") -> Plan
     p.sweep_scene = p.study_scene(config, "sweep")
     p.quality_scene = p.study_scene(config, "quality")
 
-    abl_base = config["ablations"]["base"]
-    base_source = resolve_avatar(deep_merge(user_avatar, deep_merge({"profile": "demo"},
-                                                                     abl_base)),
-                                 "config key 'ablations.base'")["train"]["smplx_source"]
-    for row in ablation_plan(abl_base, base_source, with_source=p.ablation_scene in p.scenes):
-        p.ablations[row.label] = {"variant": p.add_variant(row.name, row.overrides, user_avatar),
-                                  "overrides": row.overrides}
+    _plan_ablations(p, config["ablations"], user_avatar)
 
     native = (p.scenes[p.sweep_scene]["cameras"]["width"] if p.sweep_scene in p.scenes else 0)
     axes = {k: config["sweep"][k] for k in ("iterations", "resolution", "max_points")}
@@ -153,3 +150,37 @@ def plan(config: dict, user_config: dict | None = None, root: str = ".") -> Plan
     # the `make demo` configuration is always a point of the sweep (starred on the plot)
     p.sweep.setdefault("demo", {"swept": "demo", **sweep_values(p.variants["demo"], native)})
     return p
+
+
+def _plan_ablations(p: Plan, cfg: dict, user_avatar: dict) -> None:
+    """The ablation rows (every switch off in turn, the other SMPL-X source) and the
+    regulariser's weight sweep, at each training budget, with the held-out cameras."""
+    # the held-out cameras the study's sequence has, while one is left to train on (a
+    # single-camera sequence keeps every camera: its rows score novel poses only)
+    n = p.num_views(p.ablation_scene) if p.ablation_scene is not None else 0
+    views = sorted({v for v in cfg["test_views"] if v < n})
+    if len(views) >= n:
+        views = []
+    for iterations in cfg["iterations"] or [None]:
+        extra = {"train": {"test_views": views}}
+        if iterations is not None:
+            extra["train"]["iterations"] = iterations
+        base = deep_merge(cfg["base"], extra)
+        source = resolve_avatar(deep_merge(user_avatar, deep_merge({"profile": "demo"}, base)),
+                                "config key 'ablations.base'")["train"]["smplx_source"]
+        suffix = "" if iterations is None else f"_i{iterations}"
+        rows = ablation_plan(base, source, with_source=p.ablation_scene in p.scenes)
+        names = {}
+        for row in rows:
+            names[row.label] = p.add_variant(row.name + suffix, row.overrides, user_avatar)
+            p.ablations.append({"label": row.label, "variant": names[row.label],
+                                "iterations": p.variants[names[row.label]]["train"]["iterations"],
+                                "overrides": row.overrides})
+        full = next(r for r in rows if r.label == "full")
+        resolved_full = p.variants[names["full"]]
+        for scale, over in regularizer_plan(full.overrides, cfg["regularizer_scales"],
+                                            resolved_full):
+            name = p.add_variant(f"abl_reg{scale:g}{suffix}".replace(".", "p"), over,
+                                 user_avatar)
+            p.regularizer.append({"scale": scale, "variant": name,
+                                  "iterations": resolved_full["train"]["iterations"]})

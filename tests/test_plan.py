@@ -36,23 +36,45 @@ def test_default_config_plans_the_demo_studies_and_the_default_scene(tmp_path):
     assert p.fit_mode("single", cfg["fit"]) == "singleview"
     assert {"demo", "quality"} <= set(p.variants)
     assert p.variants["quality"]["train"]["iterations"] > p.variants["demo"]["train"]["iterations"]
-    # one row per switch plus the SMPL-X source row; every row a known, distinct variant
-    assert list(p.ablations)[0] == "full" and len(p.ablations) == 6
-    assert len({r["variant"] for r in p.ablations.values()}) == 6
+    # one row per switch plus the SMPL-X source row, at each budget; each a distinct variant
+    budgets = cfg["ablations"]["iterations"]
+    assert [r["label"] for r in p.ablations[::6]] == ["full"] * len(budgets)
+    assert len(p.ablations) == 6 * len(budgets)
+    assert len({r["variant"] for r in p.ablations}) == 6 * len(budgets)
+    assert [r["iterations"] for r in p.ablations] == [b for b in budgets for _ in range(6)]
+    assert {tuple(p.variants[r["variant"]]["train"]["test_views"]) for r in p.ablations} == \
+        {tuple(cfg["ablations"]["test_views"])}
+    # the regulariser's sweep: scale 0 is the row without it, scale 1 the full model
+    rows = {(r["label"], r["iterations"]): r["variant"] for r in p.ablations}
+    for r in p.regularizer:
+        if r["scale"] == 0:
+            assert r["variant"] == rows[("w/o regularisation", r["iterations"])]
+        elif r["scale"] == 1:
+            assert r["variant"] == rows[("full", r["iterations"])]
+        else:
+            reg = p.variants[r["variant"]]["regularize"]
+            full = p.variants[rows[("full", r["iterations"])]]["regularize"]
+            assert reg["w_scale"] == pytest.approx(r["scale"] * full["w_scale"])
     assert p.sweep["demo"]["swept"] == "demo"
-    # the sweep's centre is the ablations' "w/o regularisation" row (same resolved config)
-    centre = [v for v, vals in p.sweep.items() if vals["swept"] == "centre"]
-    assert centre == [p.ablations["w/o regularisation"]["variant"]]
 
 
 def test_equal_resolved_configs_are_one_variant(tmp_path):
     """With an empty ablation base the full model minus regularisation is the demo profile
     (which leaves regularisation off): the row points at `demo`, trained once."""
-    cfg, user = _config(tmp_path, ablations={"scene": None, "base": {}})
+    cfg, user = _config(tmp_path, ablations={"scene": None, "base": {}, "iterations": [],
+                                             "test_views": [], "regularizer_scales": []})
     p = plan(cfg, user, root=ROOT)
-    assert p.ablations["w/o regularisation"]["variant"] == "demo"
-    assert "abl_no_reg" not in p.variants
-    assert p.ablations["full"]["variant"] == "abl_full"
+    rows = {r["label"]: r["variant"] for r in p.ablations}
+    assert rows["w/o regularisation"] == "demo" and "abl_no_reg" not in p.variants
+    assert rows["full"] == "abl_full"
+
+
+def test_held_out_cameras_the_study_sequence_lacks_are_left_out(tmp_path):
+    cfg, user = _config(tmp_path, ablations={"scene": "single", "base": {},
+                                             "test_views": [1, 3], "iterations": [300],
+                                             "regularizer_scales": []})
+    p = plan(cfg, user, root=ROOT)  # one camera: nothing to hold out, novel poses only
+    assert {tuple(p.variants[r["variant"]]["train"]["test_views"]) for r in p.ablations} == {()}
 
 
 def test_the_user_avatar_section_is_under_every_variant(tmp_path):
@@ -80,7 +102,7 @@ def test_footage_runs_fitted_and_names_what_is_wrong(tmp_path):
     assert p.videos == {"clip": p.sequences["clip"]} and list(p.scenes) == ["solo"]
     assert p.default_scene == "solo"  # no multi-view scene: the first synthetic one
     assert p.smplx_source("demo", "clip") == "fitted"
-    gt = next(r["variant"] for r in p.ablations.values()
+    gt = next(r["variant"] for r in p.ablations
               if p.variants[r["variant"]]["train"]["smplx_source"] == "ground_truth")
     with pytest.raises(ConfigError, match=rf"{gt}.*'clip' is footage.*allowed here: fitted"):
         p.smplx_source(gt, "clip")

@@ -21,7 +21,7 @@ def variant_files(scene, variants):
 
 rule ablation_table:
     input:
-        **variant_files(PLAN.ablation_scene, sorted({v["variant"] for v in PLAN.ablations.values()})),
+        **variant_files(PLAN.ablation_scene, sorted({r["variant"] for r in PLAN.ablations})),
     output:
         table=f"{RESULTS}/{{scene}}/ablations.parquet",
         tsv=report(f"{RESULTS}/{{scene}}/ablations.tsv", caption="../report/ablations.rst",
@@ -41,6 +41,31 @@ rule ablation_table:
         "{PY} -m signsplat report ablations --results {RESULTS} --scene {wildcards.scene}"
         " --variants-json {params.variants:q} --out {output.table:q} --tsv {output.tsv:q}"
         " > {log} 2>&1"
+
+
+rule regularizer_table:
+    input:
+        **variant_files(PLAN.ablation_scene, sorted({r["variant"] for r in PLAN.regularizer})),
+    output:
+        table=f"{RESULTS}/{{scene}}/regularizer.parquet",
+        tsv=report(f"{RESULTS}/{{scene}}/regularizer.tsv", caption="../report/regularizer.rst",
+                   category="6. Ablations"),
+        plot=report(f"{RESULTS}/{{scene}}/regularizer.png", caption="../report/regularizer.rst",
+                    category="6. Ablations"),
+    params:
+        variants=as_json(PLAN.regularizer),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/regularizer_table.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/regularizer_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    shell:
+        "{PY} -m signsplat report regularizer --results {RESULTS} --scene {wildcards.scene}"
+        " --variants-json {params.variants:q} --out {output.table:q} --plot {output.plot:q}"
+        " --tsv {output.tsv:q} > {log} 2>&1"
 
 
 rule sweep_table:
@@ -72,6 +97,8 @@ rule ablations:
     localrule: True
     input:
         expand(rules.ablation_table.output, scene=PLAN.ablation_scene),
+        expand(rules.regularizer_table.output, scene=PLAN.ablation_scene) if PLAN.regularizer
+        else [],
 
 
 rule sweep:
@@ -85,6 +112,7 @@ def report_inputs(wildcards):
     later run of `all` after `snakemake ablations`, `sweep` or `quality` rewrites the report
     with them."""
     study = expand(rules.ablation_table.output.table, scene=PLAN.ablation_scene)
+    study += expand(rules.regularizer_table.output.table, scene=PLAN.ablation_scene)
     study += expand(rules.sweep_table.output.table, scene=PLAN.sweep_scene)
     study += QUALITY_OUTPUTS
     return final_outputs(report=False) + [f for f in study if os.path.exists(f)]
