@@ -8,7 +8,7 @@ from avatar_scenes import SIZES, random_smplx, rig
 
 from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
-from signsplat.avatar.model import sh_degree_at, wxyz_to_xyzw
+from signsplat.avatar.model import frame_quats, sh_degree_at, wxyz_to_xyzw, xyzw_to_wxyz
 from signsplat.render import rasterization
 
 CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}
@@ -146,3 +146,35 @@ def test_flat_init_puts_discs_in_the_surface(tiny_body):
     assert float(ratio.max()) < 0.5
     gb = _pose(ball, tiny_body, {"betas": torch.zeros(1, 10)})
     torch.testing.assert_close(gb.scales[0].min(-1).values, gb.scales[0].max(-1).values)
+
+
+def test_frame_quats_is_roma_gram_schmidt_then_markley():
+    """The per-vertex LBS frame's quaternion: the same values and gradients as roma's
+    special_gramschmidt + rotmat_to_unitquat, on every branch of Markley's method (rotations
+    near the identity and near half-turns about x, y and z) and on blended (not orthonormal)
+    frames."""
+    g = torch.Generator().manual_seed(0)
+    axes = torch.eye(3, dtype=torch.float64)
+    rv = torch.cat([0.3 * torch.randn(40, 3, generator=g, dtype=torch.float64),
+                    *[3.1 * axes[i] + 0.05 * torch.randn(40, 3, generator=g, dtype=torch.float64)
+                      for i in range(3)]])
+    r = roma.rotvec_to_rotmat(rv)
+    blended = 0.6 * r + 0.4 * r[torch.randperm(len(r), generator=g)]
+    m = torch.stack([r, blended]).requires_grad_()  # (2, 160, 3, 3)
+    eye = torch.eye(3, dtype=torch.float64)
+
+    def oracle(x):
+        return xyzw_to_wxyz(roma.rotmat_to_unitquat(roma.special_gramschmidt(x + 1e-6 * eye)))
+
+    want = oracle(m)
+    got = frame_quats(m)
+    assert got.shape == (2, 160, 4)
+    # every branch of Markley's method is exercised (largest diagonal candidate: w, x, y, z)
+    w, x, y, z = want.detach().abs().unbind(-1)
+    branch = torch.stack([x, y, z, w]).argmax(0)
+    assert set(branch.flatten().tolist()) == {0, 1, 2, 3}
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    probe = torch.randn(got.shape, generator=g, dtype=torch.float64)
+    g_got, = torch.autograd.grad((got * probe).sum(), m)
+    g_want, = torch.autograd.grad((want * probe).sum(), m)
+    torch.testing.assert_close(g_got, g_want, rtol=1e-9, atol=1e-10)
