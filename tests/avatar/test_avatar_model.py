@@ -2,6 +2,8 @@
 
 import math
 
+import pytest
+
 import roma
 import torch
 from avatar_scenes import SIZES, random_smplx, rig
@@ -178,3 +180,27 @@ def test_frame_quats_is_roma_gram_schmidt_then_markley():
     g_got, = torch.autograd.grad((got * probe).sum(), m)
     g_want, = torch.autograd.grad((want * probe).sum(), m)
     torch.testing.assert_close(g_got, g_want, rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.parametrize("on", ["vertices", "points"])
+def test_pose_net_runs_over_the_vertices_or_the_points(tiny_body, on):
+    """model.pose_net_on: Omega's sequence is the mesh vertices (its residuals interpolated to
+    the points) or every point; either way a zero-initialised head leaves the canonical model
+    and, once trained, moves the Gaussians and takes gradients."""
+    model, _ = _model(tiny_body, model={"pose_net_on": on})
+    params = random_smplx(2, seed=4)
+    seen = []
+    forward = model.omega.forward
+    model.omega.forward = lambda x: seen.append(tuple(x.shape)) or forward(x)
+    g0 = _pose(model, tiny_body, params)
+    length = model.num_vertices if on == "vertices" else model.num_points
+    assert model.num_vertices != model.num_points
+    assert seen == [(2, 6, length)]
+    torch.nn.init.normal_(model.omega.head.weight, std=0.5)
+    g1 = _pose(model, tiny_body, params)
+    torch.testing.assert_close(g1.means, g0.means)  # Omega never moves the points
+    assert float((g1.scales - g0.scales).abs().max()) > 1e-4
+    assert float((g1.quats - g0.quats).abs().max()) > 1e-4
+    (g1.scales.sum() + g1.colors.sum()).backward()
+    assert all(p.grad is not None and float(p.grad.abs().max()) > 0
+               for p in model.omega.trunk.parameters())
