@@ -18,6 +18,8 @@ from signsplat.io.tables import write_table
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
 
 SCHEMA = "stages/perception.schema.yaml"
+# MODNet's input normalisation (v - 127.5) / 127.5: a fact of the model (manifest), not a setting
+MODNET_MEAN_STD = (127.5, 127.5, 127.5)
 
 
 def perception_config(text: str | None) -> dict:
@@ -41,11 +43,37 @@ def specs(cfg: dict) -> tuple[SegmenterSpec, KeypointSpec]:
     return seg, kp
 
 
+def pretrained_specs(cfg: dict):
+    """(SegmenterSpec, MediaPipeSpec) of the pretrained detectors from a validated
+    ``perception`` section; model files are read from ``pretrained.cache`` (a missing one
+    fails with how to fetch it)."""
+    from signsplat.perception.pretrained.fetch import model_file
+    from signsplat.perception.pretrained.keypointer import MediaPipeSpec
+
+    pre = cfg["pretrained"]
+    s = pre["segmenter"]
+    seg = SegmenterSpec(
+        path=str(model_file(pre["cache"], "modnet")), input_size=None,
+        mean=MODNET_MEAN_STD, std=MODNET_MEAN_STD, color_order="rgb", output_index=0,
+        threshold=s["threshold"], batch_size=s["batch_size"], reference_size=s["reference_size"])
+    return seg, MediaPipeSpec.from_config(pre)
+
+
+def detector_specs(cfg: dict, detectors: str):
+    """(segmenter spec, keypointer spec) for ``detectors`` 'shipped' or 'pretrained'."""
+    if detectors == "pretrained":
+        return pretrained_specs(cfg)
+    return specs(cfg)
+
+
 def _parser(prog: str, doc: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"signsplat {prog}", description=doc)
     p.add_argument("--config-json", default=None, help="the perception config section (JSON)")
     p.add_argument("--threads", type=int, default=None, help="override perception.threads")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--detectors", choices=["shipped", "pretrained"], default="shipped",
+                   help="the shipped models (models/) or the pretrained real-world ones "
+                        "(perception.pretrained; `signsplat models fetch`)")
     return p
 
 
@@ -57,7 +85,7 @@ def segment(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, _ = specs(cfg)
+    seg, _ = detector_specs(cfg, a.detectors)
     threads = a.threads or cfg["threads"]
     from signsplat.perception.stages import segment_sequence, timings_table
 
@@ -80,12 +108,12 @@ def detect_keypoints(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    _, kp = specs(cfg)
+    _, kp = detector_specs(cfg, a.detectors)
     threads = a.threads or cfg["threads"]
     from signsplat.perception.stages import detect_sequence, timings_table
 
     report = detect_sequence(a.frames, a.masks, a.out, kp, threads, cfg["skip_bad_frames"],
-                             progress=not a.quiet)
+                             progress=not a.quiet, min_area=cfg["keypoints"]["min_area"])
     if a.timings:
         scene = str(report.table["scene"].iloc[0]) if len(report.table) else ""
         write_table(timings_table(report, scene, "detect_keypoints"), a.timings, "timings")

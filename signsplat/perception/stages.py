@@ -127,13 +127,47 @@ def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
     return _finish(report, skip_bad_frames, "segment")
 
 
+class SimccKeypointer:
+    """A top-down SimCC model (RTMPose/RTMW contract): one batched call per chunk of frames."""
+
+    source = "onnx"
+
+    def __init__(self, spec: KeypointSpec, threads: int = 1):
+        self.spec = spec
+        self.model = load_keypointer(spec, threads)
+        self.path, self.batch_size, self.min_area = str(spec.path), spec.batch_size, spec.min_area
+        self.num_keypoints = spec.num_keypoints
+
+    def detect(self, images: list, boxes: list, views: list[int]):
+        """(N, 133, 2) pixels and (N, 133) scores for frames in time order per view."""
+        return detect_batch(self.model, self.spec, images, boxes)
+
+
+def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
+    """The keypointer for ``spec``: a :class:`KeypointSpec` (SimCC ONNX model) or a
+    :class:`~signsplat.perception.pretrained.keypointer.MediaPipeSpec` (the pretrained
+    whole-body keypointer); ``min_area`` overrides the spec's (masks smaller = no person)."""
+    if isinstance(spec, KeypointSpec):
+        kp = SimccKeypointer(spec, threads)
+    else:
+        from signsplat.perception.pretrained.keypointer import MediaPipeKeypointer
+
+        kp = MediaPipeKeypointer(spec, threads)
+    if min_area is not None:
+        kp.min_area = int(min_area)
+    return kp
+
+
 def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLike,
-                    out_path: str | os.PathLike, spec: KeypointSpec, threads: int = 1,
-                    skip_bad_frames: bool = False, progress: bool = True) -> StageReport:
+                    out_path: str | os.PathLike, spec, threads: int = 1,
+                    skip_bad_frames: bool = False, progress: bool = True,
+                    min_area: int | None = None) -> StageReport:
     """COCO-WholeBody keypoints for every frame that has a row in the ``masks`` table.
 
-    The person box is the mask's box; a frame with an empty mask gets score 0 and NaN x, y.
-    Writes ``out_path`` (table ``keypoints``, one row per keypoint, scores in [0, 1]).
+    ``spec`` chooses the keypointer (:func:`open_keypointer`). A frame whose mask is empty
+    (fewer than ``min_area`` pixels) gets score 0 and NaN x, y; the SimCC models take the
+    mask's box as the person box. Writes ``out_path`` (table ``keypoints``, one row per
+    keypoint, scores in [0, 1]).
     """
     t_start = time.perf_counter()
     frames_path = Path(frames_path)
@@ -145,13 +179,13 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     bad = [f"{frames_path.parent / r['image']}: no row in {masks_path}"
            for _, r in frames[frames["_merge"] != "both"].iterrows()]
     frames = frames[frames["_merge"] == "both"].reset_index(drop=True)
-    model = load_keypointer(spec, threads)
-    k = spec.num_keypoints
+    kp = open_keypointer(spec, threads, min_area)
+    k = kp.num_keypoints
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
     keys, xys, scs = [], [], []
     bar = tqdm(total=len(frames), desc="keypoints", unit="frame", disable=not progress,
                file=sys.stderr)
-    for idx in _batches(len(frames), spec.batch_size):
+    for idx in _batches(len(frames), kp.batch_size):
         chunk = frames.iloc[list(idx)]
         t0 = time.perf_counter()
         images, errs = _read_frames(chunk, frames_path.parent)
@@ -160,12 +194,13 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
         boxes = []
         for i in good:
             b = chunk.iloc[i][["x0", "y0", "x1", "y1"]].to_numpy(np.float64)
-            small = chunk.iloc[i]["area"] < spec.min_area
+            small = chunk.iloc[i]["area"] < kp.min_area
             boxes.append(None if small or not np.all(np.isfinite(b)) or b[2] <= b[0]
                          or b[3] <= b[1] else b)
         t1 = time.perf_counter()
         if good:
-            xy, sc = detect_batch(model, spec, [images[i] for i in good], boxes)
+            xy, sc = kp.detect([images[i] for i in good], boxes,
+                               [int(chunk.iloc[i]["view"]) for i in good])
             for j, i in enumerate(good):
                 r = chunk.iloc[i]
                 keys.append((r["scene"], int(r["view"]), int(r["frame"])))
@@ -177,7 +212,7 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     bar.close()
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
-    write_table(df, out_path, "keypoints", metadata={"model": str(spec.path), "source": "onnx"})
+    write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})
     t["write"] += time.perf_counter() - t0
     t["total"] = time.perf_counter() - t_start
     report = StageReport(df, bad, t, len(keys))

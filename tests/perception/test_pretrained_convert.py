@@ -79,16 +79,14 @@ def test_conversion_is_byte_identical_run_to_run(tmp_path):
 
 def test_densify_csr_and_blocks():
     # 4 x 6 matrix: rows dense, columns CSR
-    dense = np.array([[0, 1, 0, 0, 2, 0], [0, 0, 0, 0, 0, 0], [3, 0, 0, 4, 0, 5], [0, 0, 6, 0, 0, 0]],
-                     np.float32)
+    dense = np.array([[0, 1, 0, 0, 2, 0], [0, 0, 0, 0, 0, 0], [3, 0, 0, 4, 0, 5],
+                      [0, 0, 6, 0, 0, 0]], np.float32)
     out = densify(np.array([1, 2, 3, 4, 5, 6], np.float32), (4, 6), [0, 1], [],
                   [dict(format=0, dense_size=4),
                    dict(format=1, segments=[0, 2, 2, 5, 6], indices=[1, 4, 0, 3, 5, 2])])
     np.testing.assert_array_equal(out, dense)
     # the same matrix in 2 x 2 blocks of the columns' dimension split by 2: traversal (row,
     # column block, in-block column), block map [1]; blocks stored dense, block columns CSR
-    blocked = np.array([[0, 1, 0, 0, 2, 0], [0, 0, 0, 0, 0, 0], [3, 0, 0, 4, 0, 5], [0, 0, 6, 0, 0, 0]],
-                       np.float32)
     # column blocks: (0,1), (2,3), (4,5); row 0 has blocks 0 and 2; row 2 blocks 0, 1, 2; row 3
     # block 1
     values = np.array([0, 1, 2, 0, 3, 0, 0, 4, 0, 5, 6, 0], np.float32)
@@ -96,7 +94,7 @@ def test_densify_csr_and_blocks():
                   [dict(format=0, dense_size=4),
                    dict(format=1, segments=[0, 2, 2, 5, 6], indices=[0, 2, 0, 1, 2, 1]),
                    dict(format=0, dense_size=2)])
-    np.testing.assert_array_equal(out, blocked)
+    np.testing.assert_array_equal(out, dense)
 
 
 def test_pinned_versions_are_checked(monkeypatch):

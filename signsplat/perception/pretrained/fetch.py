@@ -61,7 +61,9 @@ class Entry:
     @property
     def target(self) -> str:
         """File name in the cache."""
-        return self.file or (f"{self.name}.onnx" if self.kind == "model" else Path(self.member).name)
+        if self.file:
+            return self.file
+        return f"{self.name}.onnx" if self.kind == "model" else Path(self.member).name
 
     @property
     def target_sha256(self) -> str | None:
@@ -151,9 +153,9 @@ def _extract(wheel: Path, member: str, dst: Path, sha256: str) -> Path:
     if dst.is_file() and sha256_file(dst) == sha256:
         return dst
     try:
-        with zipfile.ZipFile(wheel) as zf, atomic_path(dst) as tmp:
-            with zf.open(member) as src, open(tmp, "wb") as out:
-                shutil.copyfileobj(src, out, 1 << 20)
+        with zipfile.ZipFile(wheel) as zf, atomic_path(dst) as tmp, zf.open(member) as src, \
+                open(tmp, "wb") as out:
+            shutil.copyfileobj(src, out, 1 << 20)
     except KeyError:
         raise FetchError(f"{wheel}: no member {member}") from None
     except zipfile.BadZipFile as exc:
@@ -171,10 +173,12 @@ def write_card(entry: Entry, cache: Path, packages: dict, sha: str, fixes: dict 
     """A short model card beside the file: source, licence, contract, hashes."""
     pkg = packages[entry.package]
     lines = [
-        f"# {entry.name}", "",
+        f"# {entry.name}",
+        "",
         f"- file: `{entry.target}` (sha256 `{sha}`)",
-        f"- source: pip package `{entry.package}=={entry.version}` (wheel `{entry.wheel}`, "
-        f"sha256 `{pkg.get('wheel_sha256')}`), member `{entry.member}` (sha256 `{entry.sha256}`)",
+        (f"- source: pip package `{entry.package}=={entry.version}` (wheel `{entry.wheel}`, "
+         f"sha256 `{pkg.get('wheel_sha256')}`), member `{entry.member}` "
+         f"(sha256 `{entry.sha256}`)"),
         f"- project: {pkg.get('homepage', '')}",
         f"- licence: {entry.licence}",
     ]

@@ -1,0 +1,260 @@
+"""The fetched pretrained detectors (skipped when `make models` has not run): converted models
+against MediaPipe's TFLite runtime, our pipeline against MediaPipe Holistic (committed
+reference numbers, ``pretrained_reference.py``), the handedness convention, MODNet and the
+real keypointer on a real photo (scikit-image's astronaut) and on synthetic frames with
+ground truth, and the stages writing the same tables as with the shipped models."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import skimage.data
+from pretrained_reference import DATA, OUT, SYNTHETIC, model_inputs, summarise
+
+from signsplat.body.joints import KEYPOINT_PARTS, KP_LEFT_HAND, KP_RIGHT_HAND
+from signsplat.config import REPO_ROOT, validate
+from signsplat.perception.contracts import open_session
+from signsplat.perception.images import read_mask, read_rgb
+from signsplat.perception.keypoints import box_from_mask
+from signsplat.perception.pretrained.fetch import load_manifest
+from signsplat.perception.pretrained.keypointer import MediaPipeSpec, MediaPipeWholeBody
+from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES
+
+CFG = validate({}, "stages/perception.schema.yaml")
+CACHE = REPO_ROOT / CFG["pretrained"]["cache"]
+_, ENTRIES = load_manifest()
+MISSING = [e.target for e in ENTRIES.values() if e.kind == "model"
+           and not (CACHE / e.target).is_file()]
+pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"pretrained models not fetched into "
+                                f"{CACHE} (make models): missing {MISSING}")
+REF = dict(np.load(OUT)) if OUT.exists() else {}
+CONVERTED = [n for n, e in ENTRIES.items() if e.convert == "tflite"]
+
+
+def spec(**override) -> MediaPipeSpec:
+    return MediaPipeSpec.from_config({**CFG["pretrained"], "cache": str(CACHE)}, **override)
+
+
+@pytest.fixture(scope="module")
+def keypointer():
+    return MediaPipeWholeBody(spec(), threads=1)
+
+
+@pytest.fixture(scope="module")
+def astronaut():
+    return skimage.data.astronaut()
+
+
+@pytest.mark.parametrize("name", CONVERTED)
+def test_converted_model_matches_the_tflite_runtime(name, astronaut):
+    """Raw outputs within 1e-3 (plus 1e-5 relative) of the TFLite runtime's on real crops."""
+    x = model_inputs(astronaut)[name]
+    sess = open_session(CACHE / f"{name}.onnx", 1)
+    outs = {}
+    for o, v in zip(sess.get_outputs(), sess.run(None, {sess.get_inputs()[0].name: x})):
+        outs[o.name] = v.transpose(0, 2, 3, 1) if v.ndim == 4 else v  # ONNX NCHW -> NHWC
+    for key, val in summarise(name, outs).items():
+        ref = REF[f"raw/{name}/{key}"]
+        if key == "top":
+            np.testing.assert_array_equal(val[:3], ref[:3])
+        else:
+            np.testing.assert_allclose(val, ref, rtol=1e-5, atol=1e-3, err_msg=f"{name}/{key}")
+
+
+@pytest.mark.parametrize("name", sorted(n for n, e in ENTRIES.items() if e.kind == "model"))
+def test_model_contract_as_the_manifest_states(name):
+    e = ENTRIES[name]
+    sess = open_session(CACHE / e.target, 1)
+    inp = sess.get_inputs()[0]
+    shape = ", ".join(str(d) if isinstance(d, int) else "?" for d in inp.shape)
+    stated = e.input.split(" float32")[0]
+    assert stated.startswith(inp.name)
+    if all(isinstance(d, int) for d in inp.shape):
+        assert f"({shape})" in stated
+    else:  # MODNet: (N, 3, H, W)
+        assert inp.shape[1] == 3 and "(N, 3, H, W)" in stated
+    for o in sess.get_outputs():
+        assert o.name in e.outputs
+
+
+def _pix(a, b):
+    d = np.linalg.norm(np.asarray(a)[:, :2] - np.asarray(b)[:, :2], axis=1)
+    return float(np.median(d)), float(d.max())
+
+
+def test_pipeline_matches_mediapipe_holistic_on_a_real_photo(keypointer, astronaut):
+    keypointer.reset()
+    res, dbg = keypointer.detect_one(astronaut)
+    assert res is not None and not dbg.tracked
+    med, worst = _pix(res.pose, REF["holistic/astronaut/pose_landmarks"])
+    assert med < 2.5 and worst < 10.0  # measured 1.7 / 7.2 px (legs off the photo)
+    head = list(range(13))  # face points and shoulders: where the photo shows the body
+    assert _pix(res.pose[head], REF["holistic/astronaut/pose_landmarks"][head])[1] < 1.5
+    np.testing.assert_allclose(res.pose_visibility, REF["holistic/astronaut/pose_landmarks"][:, 2],
+                               atol=0.05)
+    med, worst = _pix(res.face, REF["holistic/astronaut/face_landmarks"])
+    assert worst < 1.5  # measured 0.7 px
+    assert not any(res.hands.values())  # Holistic finds no hand in this photo either
+
+
+def test_pipeline_matches_mediapipe_holistic_on_a_synthetic_frame(keypointer):
+    keypointer.reset()
+    res, _ = keypointer.detect_one(read_rgb(DATA / f"{SYNTHETIC}.png"))
+    assert _pix(res.pose, REF["holistic/synthetic/pose_landmarks"])[1] < 1.5  # measured 0.5
+    assert _pix(res.face, REF["holistic/synthetic/face_landmarks"])[1] < 1.5  # measured 0.13
+    for side in ("left", "right"):
+        assert _pix(res.hands[side].points,
+                    REF[f"holistic/synthetic/{side}_hand_landmarks"])[1] < 3.5  # 0.15, 2.2
+
+
+def _gt(name):
+    gt = np.load(DATA / f"{name}_gt.npz")
+    box = box_from_mask(read_mask(DATA / f"{name}_mask.png"))
+    return gt["xy"], gt["visible"], 0.05 * max(box[2] - box[0], box[3] - box[1])
+
+
+@pytest.mark.parametrize("name", [SYNTHETIC, "studio6_v01_f0030"])
+def test_real_keypointer_on_synthetic_ground_truth(keypointer, name):
+    keypointer.reset()
+    xy, sc = keypointer.detect(read_rgb(DATA / f"{name}.png"))
+    gxy, vis, thr = _gt(name)
+    err = np.nan_to_num(np.linalg.norm(xy - gxy, axis=1), nan=np.inf)
+    pck = {p: float(np.mean(err[[k for k in ids if vis[k]]] <= thr))
+           for p, ids in KEYPOINT_PARTS.items() if vis[list(ids)].any()}
+    assert pck["left_hand"] == 1.0 and pck["right_hand"] == 1.0
+    assert pck["face"] >= 0.9  # the jaw ends sit 11-16 px off the simulator's contour
+    assert pck["body"] >= 0.75  # BlazePose's hips are 12-16 px off SMPL-X's hip joints
+    assert np.all((sc >= 0) & (sc <= 1)) and np.array_equal(np.isnan(xy[:, 0]), sc == 0)
+
+
+def test_handedness_convention_on_ground_truth_and_when_flipped(keypointer):
+    """Hands come from the pose's sides; MediaPipe's handedness ("Left" assumes a mirrored
+    image) agrees once complemented: P(figure's left) = 1 - output."""
+    img = read_rgb(DATA / f"{SYNTHETIC}.png")
+    gxy, _, thr = _gt(SYNTHETIC)
+    keypointer.reset()
+    res, _ = keypointer.detect_one(img)
+    for side, ids in (("left", KP_LEFT_HAND), ("right", KP_RIGHT_HAND)):
+        err = np.linalg.norm(res.hands[side].points - gxy[list(ids)], axis=1)
+        assert np.median(err) < thr
+    assert res.hands["left"].left_prob > 0.9 and res.hands["right"].left_prob < 0.1
+    keypointer.reset()
+    flipped, _ = keypointer.detect_one(np.ascontiguousarray(img[:, ::-1]))
+    w = img.shape[1]
+    lw, rw = BLAZEPOSE_NAMES.index("left_wrist"), BLAZEPOSE_NAMES.index("right_wrist")
+    # the flipped figure's right wrist is the signer's left wrist, mirrored
+    assert abs(flipped.pose[rw, 0] - (w - res.pose[lw, 0])) < thr
+    assert abs(flipped.pose[lw, 0] - (w - res.pose[rw, 0])) < thr
+    # ... and the hand there now looks like a right hand to the hand model
+    assert flipped.hands["right"].left_prob < 0.5
+
+
+def test_modnet_masks_the_person_not_the_background(astronaut):
+    from signsplat.perception.cli import pretrained_specs
+    from signsplat.perception.contracts import load_segmenter
+    from signsplat.perception.segment import mask_stats, segment_batch
+
+    seg, _ = pretrained_specs({**CFG, "pretrained": {**CFG["pretrained"], "cache": str(CACHE)}})
+    model = load_segmenter(seg, 1)
+    (alpha,) = segment_batch(model, seg, [astronaut])
+    mask = mask_stats(alpha, seg.threshold)["mask"]
+    assert mask[130, 225] and mask[330, 200]  # her face, her suit
+    assert mask[:120, :90].mean() < 0.02  # the flag, top left
+    assert mask[:200, 400:].mean() < 0.02  # the background, top right
+    assert 0.3 < mask.mean() < 0.7
+
+
+def _scene(tmp_path, names, empty=()):
+    """A frames/masks pair of tables over the committed test frames."""
+    import shutil
+
+    from signsplat.io.tables import write_table
+    from signsplat.perception.segment import mask_stats
+
+    sim = tmp_path / "sim"
+    frames, masks = [], []
+    for f, name in enumerate(names):
+        for rel, src in ((f"images/00/{f:04d}.png", f"{name}.png"),
+                         (f"masks/00/{f:04d}.png", f"{name}_mask.png")):
+            (sim / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(DATA / src, sim / rel)
+        frames.append(("t", 0, f, f / 25, f"images/00/{f:04d}.png", f"masks/00/{f:04d}.png"))
+        m = read_mask(sim / f"masks/00/{f:04d}.png") & (f not in empty)
+        st = mask_stats(m.astype(np.float32), 0.5)
+        masks.append(("t", 0, f, f"masks/00/{f:04d}.png", st["area"], *st["box"], 1.0))
+    fr = pd.DataFrame(frames, columns=["scene", "view", "frame", "time", "image", "mask"])
+    write_table(fr.astype({"view": "int32", "frame": "int32"}), sim / "frames.parquet", "frames")
+    mk = pd.DataFrame(masks, columns=["scene", "view", "frame", "mask", "area", "x0", "y0", "x1",
+                                      "y1", "confidence"])
+    mk = mk.astype({"view": "int32", "frame": "int32", "area": "int64", "x0": "float32",
+                    "y0": "float32", "x1": "float32", "y1": "float32", "confidence": "float32"})
+    write_table(mk, sim / "masks.parquet", "masks")
+    return sim
+
+
+def test_stage_writes_the_same_keypoints_table_as_the_shipped_models(tmp_path):
+    from signsplat.perception.cli import specs
+    from signsplat.perception.stages import detect_sequence
+
+    sim = _scene(tmp_path, [SYNTHETIC, SYNTHETIC, "studio6_v01_f0030"], empty=(1,))
+    _, shipped = specs(CFG)
+    shipped = type(shipped)(**{**shipped.__dict__, "path": str(REPO_ROOT / shipped.path)})
+    a = detect_sequence(sim / "frames.parquet", sim / "masks.parquet", tmp_path / "a.parquet",
+                        shipped, 1, progress=False).table
+    b = detect_sequence(sim / "frames.parquet", sim / "masks.parquet", tmp_path / "b.parquet",
+                        spec(), 1, progress=False, min_area=50).table
+    assert list(a.columns) == list(b.columns) and list(a.dtypes) == list(b.dtypes)
+    assert len(b) == 3 * 133
+    f1 = b[b.frame == 1]
+    assert (f1.score == 0).all() and f1.x.isna().all()  # empty mask: no person
+    f0 = b[b.frame == 0]
+    assert (f0.score > 0).sum() > 100
+    from signsplat.io.tables import read_table
+
+    meta = read_table(tmp_path / "b.parquet", "keypoints")
+    assert len(meta) == len(b)
+
+
+def test_cli_runs_both_stages_with_the_pretrained_detectors(tmp_path):
+    import json
+
+    from signsplat.cli import main
+    from signsplat.io.tables import read_table
+
+    sim = _scene(tmp_path, [SYNTHETIC])
+    cfg = json.dumps({"pretrained": {"cache": str(CACHE)}})
+    out = tmp_path / "perception"
+    assert main(["segment", "--frames", str(sim / "frames.parquet"), "--out-dir", str(out),
+                 "--config-json", cfg, "--detectors", "pretrained", "--quiet"]) == 0
+    masks = read_table(out / "masks.parquet", "masks")
+    assert masks["area"].iloc[0] > 5000
+    gt_mask = read_mask(DATA / f"{SYNTHETIC}_mask.png")
+    pred = read_mask(out / masks["mask"].iloc[0])
+    assert (pred & gt_mask).sum() / (pred | gt_mask).sum() > 0.85
+    assert main(["detect-keypoints", "--frames", str(sim / "frames.parquet"), "--masks",
+                 str(out / "masks.parquet"), "--out", str(out / "keypoints.parquet"),
+                 "--config-json", cfg, "--detectors", "pretrained", "--quiet"]) == 0
+    kp = read_table(out / "keypoints.parquet", "keypoints")
+    assert (kp.score > 0).sum() > 100
+
+
+def test_missing_cache_says_how_to_fetch(tmp_path, capsys):
+    import json
+
+    from signsplat.cli import main
+
+    sim = _scene(tmp_path, [SYNTHETIC])
+    cfg = json.dumps({"pretrained": {"cache": str(tmp_path / "empty")}})
+    code = main(["segment", "--frames", str(sim / "frames.parquet"), "--out-dir",
+                 str(tmp_path / "p"), "--config-json", cfg, "--detectors", "pretrained"])
+    assert code == 2
+    assert "signsplat models fetch" in capsys.readouterr().err
+    spec_missing = MediaPipeSpec.from_config({**CFG["pretrained"], "cache": str(tmp_path)})
+    from signsplat.perception.contracts import ModelContractError
+
+    with pytest.raises(ModelContractError, match="pose_detection.*signsplat models fetch"):
+        MediaPipeWholeBody(spec_missing)
+    assert Path(tmp_path).exists()
