@@ -27,6 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
     "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),
     "perception-eval": ("signsplat.perception.cli", "perception accuracy and speed"),
+    "perception-quality": ("signsplat.perception.cli",
+                           "detection rates and jitter on footage (no ground truth)"),
     "fit": ("signsplat.fit.cli", "SMPL-X fitting, multi-view or single view"),
     "colmap-compare": ("signsplat.colmap.cli", "COLMAP reconstruction vs the SMPL-X camera solve"),
     "train-avatar": ("signsplat.avatar.cli", "train the Gaussian-splat avatar"),

@@ -65,6 +65,16 @@ def detectors_for(row: dict, cfg: dict) -> str:
     return row.get("detectors") or cfg["detectors"][row["source"]]
 
 
+def perception_for(row: dict, cfg: dict) -> dict:
+    """The perception section one sequence runs with: ``cfg`` with the row's ``signer``
+    column (largest, central or x,y,w,h) in place of ``signer.rule`` / ``signer.box``."""
+    if not row.get("signer"):
+        return cfg
+    from signsplat.perception.pretrained.select import parse_signer
+
+    return {**cfg, "signer": {**cfg["signer"], **parse_signer(row["signer"])}}
+
+
 def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     """The model files each stage reads for ``detectors`` (workflow inputs): the configured
     ONNX files, or the pretrained ones in ``perception.pretrained.cache``."""
@@ -77,6 +87,15 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
         return {"segmenter": [str(cache / entries["modnet"].target)],
                 "keypoints": [str(cache / entries[m["name"]].target) for m in MODELS]}
     return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [cfg["keypoints"]["model"]]}
+
+
+def asset_files(cfg: dict) -> dict[str, str]:
+    """Fetchable assets (the example clip) by name -> their path in the cache."""
+    from signsplat.perception.pretrained.fetch import load_manifest
+
+    _, entries = load_manifest()
+    return {n: str(Path(cfg["pretrained"]["cache"]) / e.target)
+            for n, e in entries.items() if e.kind == "asset"}
 
 
 def detector_specs(cfg: dict, detectors: str):
@@ -105,12 +124,17 @@ def segment(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, _ = detector_specs(cfg, a.detectors)
+    seg, kp = detector_specs(cfg, a.detectors)
     threads = a.threads or cfg["threads"]
     from signsplat.perception.stages import segment_sequence, timings_table
 
+    signer = None
+    if a.detectors == "pretrained":
+        from signsplat.perception.pretrained.select import SignerMasking, SignerRule
+
+        signer = SignerMasking(kp, SignerRule.from_config(cfg["signer"]), threads)
     report = segment_sequence(a.frames, a.out_dir, seg, threads, cfg["skip_bad_frames"],
-                              progress=not a.quiet)
+                              progress=not a.quiet, signer=signer)
     if a.timings:
         scene = str(report.table["scene"].iloc[0]) if len(report.table) else ""
         write_table(timings_table(report, scene, "segment"), a.timings, "timings")
@@ -124,6 +148,9 @@ def detect_keypoints(argv: list[str]) -> int:
     p = _parser("detect-keypoints", detect_keypoints.__doc__)
     p.add_argument("--frames", required=True, help="frames.parquet")
     p.add_argument("--masks", required=True, help="masks.parquet written by segment")
+    p.add_argument("--persons", default=None,
+                   help="persons.parquet written by segment: the pretrained keypointer takes "
+                        "the signer chosen there")
     p.add_argument("--out", required=True, help="keypoints.parquet to write")
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
@@ -133,7 +160,8 @@ def detect_keypoints(argv: list[str]) -> int:
     from signsplat.perception.stages import detect_sequence, timings_table
 
     report = detect_sequence(a.frames, a.masks, a.out, kp, threads, cfg["skip_bad_frames"],
-                             progress=not a.quiet, min_area=cfg["keypoints"]["min_area"])
+                             progress=not a.quiet, min_area=cfg["keypoints"]["min_area"],
+                             persons_path=a.persons if a.detectors == "pretrained" else None)
     if a.timings:
         scene = str(report.table["scene"].iloc[0]) if len(report.table) else ""
         write_table(timings_table(report, scene, "detect_keypoints"), a.timings, "timings")
@@ -156,6 +184,28 @@ def perception_eval(argv: list[str]) -> int:
     timing_paths = dict(t.split("=", 1) for t in a.timings)
     df = evaluate_scene(a.sim_dir, a.perception_dir, a.out, seg, kp,
                         a.threads or cfg["threads"], cfg["eval"]["speed_frames"], timing_paths)
+    print(format_table(df))
+    return 0
+
+
+def perception_quality(argv: list[str]) -> int:
+    """Detection rates and keypoint jitter of footage (no ground truth), and overlays."""
+    p = _parser("perception-quality", perception_quality.__doc__)
+    p.add_argument("--frames", required=True, help="frames.parquet")
+    p.add_argument("--masks", required=True, help="masks.parquet")
+    p.add_argument("--keypoints", required=True, help="keypoints.parquet")
+    p.add_argument("--out", required=True, help="quality.parquet to write")
+    p.add_argument("--overlays", default=None, help="folder for overlay PNGs")
+    a = p.parse_args(argv)
+    cfg = perception_config(a.config_json)["quality"]
+    from signsplat.perception.quality import footage_quality, write_overlays
+
+    df = footage_quality(a.frames, a.keypoints, a.out, cfg["min_score"])
+    if a.overlays:
+        write_overlays(a.frames, a.masks, a.keypoints, a.overlays, cfg["overlays"],
+                       cfg["min_score"])
+    from signsplat.perception.evaluate import format_table
+
     print(format_table(df))
     return 0
 

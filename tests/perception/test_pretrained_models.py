@@ -258,3 +258,94 @@ def test_missing_cache_says_how_to_fetch(tmp_path, capsys):
     with pytest.raises(ModelContractError, match="pose_detection.*signsplat models fetch"):
         MediaPipeWholeBody(spec_missing)
     assert Path(tmp_path).exists()
+
+
+def _fast_cfg() -> dict:
+    """The config with the fetched cache and MODNet at a 256-pixel reference size (4x fewer
+    pixels than its default 512: a faster test)."""
+    pre = CFG["pretrained"]
+    return {**CFG, "pretrained": {**pre, "cache": str(CACHE),
+                                  "segmenter": {**pre["segmenter"], "reference_size": 256}}}
+
+
+def _two_people() -> np.ndarray:
+    """The synthetic signer (256 x 256) beside a smaller mirrored copy: a 256 x 448 frame."""
+    import cv2
+
+    img = read_rgb(DATA / f"{SYNTHETIC}.png")
+    right = np.empty((256, 192, 3), np.uint8)
+    right[:] = img[:, -192:].mean(axis=(0, 1)).astype(np.uint8)
+    right[256 - 200:, :] = cv2.resize(img[:, ::-1], (200, 200))[:, 4:196]
+    return np.ascontiguousarray(np.hstack([img, right]))
+
+
+@pytest.mark.parametrize("signer, side", [({"rule": "largest"}, "left"),
+                                          ({"rule": "box", "box": [300, 60, 100, 190]},
+                                           "right")])
+def test_stages_take_one_signer_of_two(tmp_path, signer, side):
+    from signsplat.io.images import write_png
+    from signsplat.io.tables import read_table, write_table
+    from signsplat.perception.cli import pretrained_specs
+    from signsplat.perception.pretrained.select import SignerMasking, SignerRule
+    from signsplat.perception.stages import detect_sequence, segment_sequence
+
+    frame = _two_people()
+    sim = tmp_path / "sim"
+    rows = []
+    for f in range(2):
+        write_png(sim / f"images/00/{f:04d}.png", frame)
+        rows.append(("two", 0, f, f / 25, f"images/00/{f:04d}.png", ""))
+    fr = pd.DataFrame(rows, columns=["scene", "view", "frame", "time", "image", "mask"])
+    write_table(fr.astype({"view": "int32", "frame": "int32"}), sim / "frames.parquet", "frames")
+    seg, kp = pretrained_specs(_fast_cfg())
+    rule = SignerRule.from_config({**CFG["signer"], **signer})
+    out = tmp_path / "perception"
+    segment_sequence(sim / "frames.parquet", out, seg, 1, progress=False,
+                     signer=SignerMasking(kp, rule, 1))
+    persons = read_table(out / "persons.parquet", "persons")
+    assert (persons.groupby("frame").size() == 2).all()  # both people seen in each frame
+    chosen = persons[persons["chosen"]]
+    assert len(chosen) == 2 and (chosen["frame"] == [0, 1]).all()
+    assert chosen["chosen_by"].tolist() == [signer["rule"], "tracked"]
+    on_left = chosen["hip_x"] < 256
+    assert on_left.all() if side == "left" else not on_left.any()
+    mask = read_mask(out / read_table(out / "masks.parquet", "masks")["mask"].iloc[1])
+    ours, theirs = (mask[:, :256], mask[:, 256:]) if side == "left" else (mask[:, 256:],
+                                                                         mask[:, :256])
+    assert ours.sum() > 3000 and theirs.sum() < 0.02 * ours.sum()
+    masked = read_table(out / "masked_frames.parquet", "frames")
+    assert (out / masked["image"].iloc[0]).resolve() == (sim / "images/00/0000.png").resolve()
+    assert masked["mask"].iloc[1] == "masks/00/0001.png"
+    table = detect_sequence(sim / "frames.parquet", out / "masks.parquet", tmp_path / "k.parquet",
+                            kp, 1, progress=False, min_area=50,
+                            persons_path=out / "persons.parquet").table
+    body = table[(table["kp"] < 13) & (table["score"] > 0.5)]
+    assert len(body) > 10
+    assert (body["x"] < 256).all() if side == "left" else (body["x"] > 256).all()
+
+
+def test_no_person_in_any_frame_names_the_input_and_frames(tmp_path):
+    import json
+
+    from signsplat.errors import InputError
+    from signsplat.io.images import write_png
+    from signsplat.io.tables import write_table
+    from signsplat.perception.cli import pretrained_specs
+    from signsplat.perception.pretrained.select import SignerMasking, SignerRule
+    from signsplat.perception.stages import segment_sequence
+
+    sim = tmp_path / "sim"
+    wall = np.tile(np.uint8([[40], [200]]), (64, 96))[..., None].repeat(3, -1)  # stripes
+    rows = []
+    for f in range(3):
+        write_png(sim / f"images/00/{f:04d}.png", wall)
+        rows.append(("empty", 0, f, f / 25, f"images/00/{f:04d}.png", ""))
+    fr = pd.DataFrame(rows, columns=["scene", "view", "frame", "time", "image", "mask"])
+    write_table(fr.astype({"view": "int32", "frame": "int32"}), sim / "frames.parquet", "frames",
+                metadata={"cameras": json.dumps(["/data/wall.mp4"])})
+    seg, kp = pretrained_specs(_fast_cfg())
+    with pytest.raises(InputError, match=r"/data/wall\.mp4: no person found in any of its 3 "
+                                         r"frame\(s\) \(frames 0-2"):
+        segment_sequence(sim / "frames.parquet", tmp_path / "p", seg, 1, progress=False,
+                         signer=SignerMasking(kp, SignerRule.from_config(CFG["signer"]), 1))
+    assert (tmp_path / "p" / "masks.parquet").is_file()  # the outputs are written first

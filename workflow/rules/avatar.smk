@@ -99,6 +99,8 @@ def avatar_smplx_source(wildcards):
 
 def avatar_inputs(wildcards):
     files = {"frames": frames_table(wildcards), "body": rules.body_model.output[0]}
+    if wildcards.scene in VIDEOS:  # footage: the perception stage's masks
+        files["frames"] = f"{RESULTS}/{wildcards.scene}/perception/masked_frames.parquet"
     if avatar_smplx_source(wildcards) == "fitted":
         files["smplx"] = f"{RESULTS}/{wildcards.scene}/fit/smplx_fit.parquet"
         files["cameras"] = f"{RESULTS}/{wildcards.scene}/fit/cameras_fit.parquet"

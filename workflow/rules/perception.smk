@@ -6,7 +6,7 @@
 # simulated scenes (not part of `all`; copy its ONNX outputs to models/; models/README.md is
 # their model card).
 from signsplat.config import validate as _validate
-from signsplat.perception.cli import detector_files, detectors_for
+from signsplat.perception.cli import asset_files, detector_files, detectors_for, perception_for
 
 PERCEPTION = _validate(
     dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
@@ -23,6 +23,11 @@ def detectors(wildcards):
 
 def detector_inputs(stage):
     return lambda w: detector_files(PERCEPTION, detectors(w))[stage]
+
+
+def perception_json(wildcards):
+    """The perception section for this sequence (its sheet row's signer column applied)."""
+    return as_json(perception_for(SEQUENCES[wildcards.scene], PERCEPTION))
 
 
 _PRETRAINED = detector_files(PERCEPTION, "pretrained")
@@ -43,6 +48,25 @@ rule fetch_models:
         "{PY} -m signsplat models fetch --cache {params.cache:q} > {log} 2>&1"
 
 
+ASSET_FILES = asset_files(PERCEPTION)  # name -> path in the cache (the example clip)
+
+
+rule fetch_assets:
+    output:
+        list(ASSET_FILES.values()),
+    params:
+        names=" ".join(ASSET_FILES),
+        cache=PERCEPTION["pretrained"]["cache"],
+    log:
+        f"{RESULTS}/_logs/fetch_assets.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    shell:
+        "{PY} -m signsplat models fetch {params.names} --cache {params.cache:q} > {log} 2>&1"
+
+
 rule segment:
     input:
         frames=frames_table,
@@ -50,9 +74,11 @@ rule segment:
     output:
         table=f"{RESULTS}/{{scene}}/perception/masks.parquet",
         masks=directory(f"{RESULTS}/{{scene}}/perception/masks"),
+        persons=f"{RESULTS}/{{scene}}/perception/persons.parquet",
+        masked_frames=f"{RESULTS}/{{scene}}/perception/masked_frames.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/segment_timings.parquet",
     params:
-        cfg=as_json(PERCEPTION),
+        cfg=perception_json,
         out=lambda w: perception_dir(w.scene),
         detectors=detectors,
     log:
@@ -73,12 +99,13 @@ rule detect_keypoints:
     input:
         frames=frames_table,
         masks=rules.segment.output.table,
+        persons=rules.segment.output.persons,
         model=detector_inputs("keypoints"),
     output:
         keypoints=f"{RESULTS}/{{scene}}/perception/keypoints.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/keypoints_timings.parquet",
     params:
-        cfg=as_json(PERCEPTION),
+        cfg=perception_json,
         detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/detect_keypoints.log",
@@ -90,6 +117,7 @@ rule detect_keypoints:
         runtime=30,
     shell:
         "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
+        " --persons {input.persons}"
         " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
         " --timings {output.timings} --detectors {params.detectors} > {log} 2>&1"
 
@@ -124,6 +152,30 @@ rule perception_eval:
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
 
 
+rule perception_quality:
+    input:
+        frames=frames_table,
+        masks=rules.segment.output.table,
+        keypoints=rules.detect_keypoints.output.keypoints,
+    output:
+        table=f"{RESULTS}/{{scene}}/perception/quality.parquet",
+        overlays=directory(f"{RESULTS}/{{scene}}/perception/overlays"),
+    params:
+        cfg=as_json(PERCEPTION),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/perception_quality.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/perception_quality.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    shell:
+        "{PY} -m signsplat perception-quality --frames {input.frames} --masks {input.masks}"
+        " --keypoints {input.keypoints} --out {output.table} --overlays {output.overlays}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
+
+
 rule train_detectors:
     input:
         body=rules.body_model.output[0],
@@ -151,3 +203,4 @@ rule train_detectors:
 
 FINAL_OUTPUTS.extend(expand(rules.detect_keypoints.output.keypoints, scene=list(SEQUENCES)))
 FINAL_OUTPUTS.extend(expand(rules.perception_eval.output[0], scene=list(SCENES)))
+FINAL_OUTPUTS.extend(expand(rules.perception_quality.output.table, scene=list(VIDEOS)))

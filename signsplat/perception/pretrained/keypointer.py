@@ -79,6 +79,19 @@ class MediaPipeSpec:
 
 
 @dataclass
+class PoseOutput:
+    """The pose model's output in image pixels: landmarks (39, 2) (33 BlazePose points, then
+    the auxiliary ones), visibility (39,), presence, segmentation logits (256, 256) of the
+    crop ``roi``."""
+
+    points: np.ndarray
+    visibility: np.ndarray
+    presence: float
+    segmentation: np.ndarray
+    roi: mp.Roi
+
+
+@dataclass
 class FrameDebug:
     """What the keypointer did on a frame (for overlays and the tables)."""
 
@@ -151,16 +164,16 @@ class MediaPipeWholeBody:
         """The pose model's ROI from a detection's (or the landmarks' auxiliary) points."""
         return mp.transform_roi(mp.alignment_roi(hip, scale_point, np.pi / 2), 1.25, 1.25)
 
-    def pose(self, image: np.ndarray, roi: mp.Roi):
-        """(39, 2) landmarks in image pixels, (39,) visibility, presence probability."""
+    def pose(self, image: np.ndarray, roi: mp.Roi) -> PoseOutput:
+        """The pose model in ``roi``: 39 landmarks, visibility, presence, segmentation."""
         outs, roi = self._run(POSE_LMK, image, roi)
         size = POSE_LMK["size"]
         raw = outs[0].reshape(39, 5).astype(np.float64)
         pts = raw[:, :2]
         if self.spec.heatmap_kernel > 0:
             pts = mp.refine_from_heatmap(pts, outs[3][0], (size, size), self.spec.heatmap_kernel)
-        presence = float(np.ravel(outs[1])[0])
-        return mp.crop_to_image(pts, roi, (size, size)), mp.sigmoid(raw[:, 3]), presence
+        return PoseOutput(mp.crop_to_image(pts, roi, (size, size)), mp.sigmoid(raw[:, 3]),
+                          float(np.ravel(outs[1])[0]), outs[2][0, 0], roi)
 
     def hand(self, image: np.ndarray, wrist, pinky, index) -> tuple[HandResult, mp.Roi]:
         """One hand's landmarks from the pose's wrist, pinky and index points."""
@@ -205,25 +218,32 @@ class MediaPipeWholeBody:
 
     # --- one frame ------------------------------------------------------------------------
 
-    def detect_one(self, image: np.ndarray, choose=None) -> tuple[WholeBodyResult | None,
+    def detect_one(self, image: np.ndarray, person=None) -> tuple[WholeBodyResult | None,
                                                                   FrameDebug]:
         """Landmarks of one person in an RGB uint8 frame, or None when there is none.
 
-        ``choose(detections) -> index`` picks the person among the detector's (default: the
-        best scored); it is used only when no tracked ROI carries over from the last frame."""
+        ``person``: the signer's mid-hip and full-body size points (2, 2) from the segment
+        stage's choice; without it the detector's best-scored person. The ROI tracked from
+        the last frame is used instead when its centre lies within a quarter of the person's
+        body size of the person's mid-hip point (always, without ``person``)."""
         s = self.spec
         dbg = FrameDebug()
         result = None
-        if s.track and self.prev_roi is not None:
+        start = None if person is None else self.person_roi(person[0], person[1])
+        if s.track and self.prev_roi is not None and (
+                start is None or np.hypot(self.prev_roi.cx - start.cx,
+                                          self.prev_roi.cy - start.cy) < start.w / 1.25 / 4):
             dbg.tracked = True
             result = self._pose_in(image, self.prev_roi, dbg)
         if result is None:
             dbg.tracked = False
-            dbg.persons = self.detect_persons(image)
-            if len(dbg.persons):
-                i = 0 if choose is None else int(choose(dbg.persons))
-                kp = dbg.persons.keypoints[i]
-                result = self._pose_in(image, self.person_roi(kp[0], kp[1]), dbg)
+            if start is None:
+                dbg.persons = self.detect_persons(image)
+                if len(dbg.persons):
+                    kp = dbg.persons.keypoints[0]
+                    start = self.person_roi(kp[0], kp[1])
+            if start is not None:
+                result = self._pose_in(image, start, dbg)
         if result is None:
             self.prev_roi = None
             return None, dbg
@@ -243,17 +263,17 @@ class MediaPipeWholeBody:
         return result, dbg
 
     def _pose_in(self, image, roi: mp.Roi, dbg: FrameDebug) -> WholeBodyResult | None:
-        pts, vis, presence = self.pose(image, roi)
-        if presence < self.spec.min_pose_presence:
+        out = self.pose(image, roi)
+        if out.presence < self.spec.min_pose_presence:
             self.prev_roi = None
             return None
         dbg.pose_roi = roi
-        self.prev_roi = self.person_roi(pts[33], pts[34])
-        return WholeBodyResult(pts[:33], vis[:33], {})
+        self.prev_roi = self.person_roi(out.points[33], out.points[34])
+        return WholeBodyResult(out.points[:33], out.visibility[:33], {})
 
-    def detect(self, image: np.ndarray, choose=None) -> tuple[np.ndarray, np.ndarray]:
+    def detect(self, image: np.ndarray, person=None) -> tuple[np.ndarray, np.ndarray]:
         """COCO-WholeBody (133, 2) pixels (NaN = none) and (133,) scores of one frame."""
-        result, _ = self.detect_one(image, choose)
+        result, _ = self.detect_one(image, person)
         return to_coco_wholebody(result, self.spec.min_score)
 
 
@@ -272,15 +292,18 @@ class MediaPipeKeypointer:
         self.path = str(spec.cache)
         self._view = None
 
-    def detect(self, images: list, boxes: list, views: list[int]):
+    def detect(self, images: list, boxes: list, views: list[int], persons: list | None = None):
+        """Keypoints per frame; ``persons`` (per frame the chosen signer's (2, 2) mid-hip and
+        size points, or None) come from the segment stage's persons table."""
         n = len(images)
         xy = np.full((n, NUM_KEYPOINTS, 2), np.nan, np.float32)
         sc = np.zeros((n, NUM_KEYPOINTS), np.float32)
-        for i, (image, box, view) in enumerate(zip(images, boxes, views)):
+        persons = persons if persons is not None else [None] * n
+        for i, (image, box, view) in enumerate(zip(images, boxes, views, strict=True)):
             if view != self._view or box is None:
                 self.model.reset()
                 self._view = view
             if box is None:
                 continue
-            xy[i], sc[i] = self.model.detect(image)
+            xy[i], sc[i] = self.model.detect(image, persons[i])
         return xy, sc
