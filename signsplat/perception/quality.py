@@ -29,6 +29,7 @@ import pandas as pd
 
 from signsplat.body.joints import KP_BODY, KP_FACE, KP_LEFT_HAND, KP_RIGHT_HAND, NUM_KEYPOINTS
 from signsplat.io.tables import Table, read_table, register_table, write_table
+from signsplat.perception.tables import MASKS_TABLE  # noqa: F401  (registers 'masks')
 
 QUALITY_TABLE = register_table(Table(
     "footage_quality",

@@ -76,3 +76,34 @@ def test_table_over_frames_without_keypoints(tmp_path):
     assert got[("detection_rate", "body")] == pytest.approx(0.5)
     assert got[("detection_rate", "left_hand")] == 1.0  # visible only where found
     assert read_table(tmp_path / "q.parquet", "footage_quality").attrs["height"] == str(H)
+    # overlays: the mask tinted green, found keypoints drawn, in a fresh process's tables
+    import subprocess
+    import sys
+
+    from signsplat.io.images import read_rgb, write_png as png
+
+    mask = np.zeros((H, W), np.uint8)
+    mask[10:30, 10:30] = 255
+    png(tmp_path / "masks/0.png", mask)
+    mt = pd.DataFrame([("c", 0, f, "masks/0.png", 400, 10.0, 10.0, 30.0, 30.0, 1.0)
+                       for f in range(6)],
+                      columns=["scene", "view", "frame", "mask", "area", "x0", "y0", "x1", "y1",
+                               "confidence"])
+    write_table(mt.astype({"view": "int32", "frame": "int32", "area": "int64", "x0": "float32",
+                           "y0": "float32", "x1": "float32", "y1": "float32",
+                           "confidence": "float32"}), tmp_path / "masks.parquet", "masks")
+    code = ("import sys; from signsplat.cli import main; sys.exit(main(sys.argv[1:]))")
+    res = subprocess.run([sys.executable, "-c", code, "perception-quality", "--frames",
+                          str(tmp_path / "frames.parquet"), "--masks",
+                          str(tmp_path / "masks.parquet"), "--keypoints",
+                          str(tmp_path / "kp.parquet"), "--out", str(tmp_path / "q2.parquet"),
+                          "--overlays", str(tmp_path / "ov")], capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    shots = sorted((tmp_path / "ov").glob("*.png"))
+    assert [p.name for p in shots] == ["0000.png", "0002.png", "0003.png", "0005.png"]
+    first = read_rgb(shots[0])
+    assert first[20, 20, 1] > first[20, 20, 0]  # tinted green inside the mask
+    assert tuple(first[50, 100]) == (255, 0, 220)  # hands at (100, 50), the right drawn last
+    assert tuple(read_rgb(shots[-1])[50, 100]) == (0, 0, 0)  # frame 5 has no keypoints
+
