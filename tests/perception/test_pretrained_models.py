@@ -349,3 +349,27 @@ def test_no_person_in_any_frame_names_the_input_and_frames(tmp_path):
         segment_sequence(sim / "frames.parquet", tmp_path / "p", seg, 1, progress=False,
                          signer=SignerMasking(kp, SignerRule.from_config(CFG["signer"]), 1))
     assert (tmp_path / "p" / "masks.parquet").is_file()  # the outputs are written first
+
+
+def test_face_is_the_one_at_the_pose_nose_not_the_best_scored(keypointer, monkeypatch):
+    """In a crowd the face search region can hold a neighbour's face scored higher than the
+    signer's: the face nearest the pose's nose is taken."""
+    from signsplat.perception.pretrained import mediapipe as mp
+
+    img = read_rgb(DATA / f"{SYNTHETIC}.png")
+    keypointer.reset()
+    res, dbg = keypointer.detect_one(img)
+    real = keypointer._detect(
+        {"name": "face_detection_short_range", "size": 128, "range": (-1.0, 1.0),
+         "border": "zero", "keypoints": 6}, img, dbg.face_roi, 0.5)
+    assert len(real) == 1
+    decoy = mp.Detections(real.boxes + [60.0, 0, 60.0, 0], real.keypoints + [60.0, 0.0],
+                          np.array([0.99]))
+    both = mp.Detections(np.concatenate([decoy.boxes, real.boxes]),
+                         np.concatenate([decoy.keypoints, real.keypoints]),
+                         np.array([0.99, float(real.scores[0])]))
+    monkeypatch.setattr(keypointer, "_detect", lambda *a, **k: both)
+    pts, presence, roi = keypointer.face(img, res.pose[:11])
+    # the signer's face (the decoy lies 60 px to the side)
+    assert abs(roi.cx - dbg.face_roi.cx) < 3.0 and presence > 0.9
+    np.testing.assert_allclose(pts, res.face, atol=3.0)

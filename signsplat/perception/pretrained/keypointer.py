@@ -17,9 +17,10 @@ Per frame (ROI = rotated square region of interest, :mod:`.mediapipe`):
    (2 points -> a tight ROI), in which the hand landmark model (224 x 224) gives 21 points,
    their presence and the handedness.
 4. **Face**: an ROI from the pose's face points (their box, turned eye-to-eye, 3x) in which
-   the short-range face detector (128 x 128) finds the face; its eye keypoints give the face
-   ROI (2x, shifted 0.1 up), in which the face mesh model (192 x 192) gives 468 points and a
-   presence logit.
+   the short-range face detector (128 x 128) finds faces; the one whose nose tip is nearest
+   the pose's nose (not MediaPipe's best-scored one: in a crowd that can be a neighbour's)
+   gives the face ROI from its eye keypoints (2x, shifted 0.1 up), in which the face mesh
+   model (192 x 192) gives 468 points and a presence logit.
 
 Hands are assigned by the pose's sides; the hand model's handedness is kept as a check
 (:func:`~.wholebody.left_hand_prob`: MediaPipe's label assumes mirrored images).
@@ -207,7 +208,10 @@ class MediaPipeWholeBody:
         det = self._detect(FACE_DET, image, search, self.spec.min_face_detection_score)
         if not len(det):
             return None, 0.0, None
-        kps = det.keypoints[0]
+        # the face whose nose tip is nearest the pose's nose (MediaPipe takes the best-scored
+        # one, which in a crowd can be a neighbour's face inside the search region)
+        kps = det.keypoints[int(np.argmin(np.linalg.norm(det.keypoints[:, 2] - pose_face[0],
+                                                         axis=1)))]
         rot = mp.rotation_between(kps[0], kps[1], 0.0)
         roi = mp.transform_roi(mp.box_roi(kps, rot), 2.0, 2.0, shift_y=-0.1)
         outs, roi = self._run(FACE_LMK, image, roi)
