@@ -31,11 +31,11 @@ import pandas as pd
 from signsplat.body.joints import COCO_BODY_NAMES
 from signsplat.config import REPO_ROOT, validate
 from signsplat.io.atomic import atomic_path
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.io.tables import read_table
-from signsplat.perception.cli import pretrained_specs, specs
 from signsplat.perception.contracts import load_segmenter
+from signsplat.perception.detectors import pretrained_specs, specs
 from signsplat.perception.evaluate import PCK_ALPHA, accuracy
-from signsplat.perception.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask
 from signsplat.perception.pretrained.keypointer import MODELS, MediaPipeSpec, MediaPipeWholeBody
 from signsplat.perception.segment import segment_batch

@@ -24,13 +24,12 @@ import numpy as np
 import pandas as pd
 
 from signsplat.body.joints import KEYPOINT_PARTS, NUM_KEYPOINTS
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.io.tables import read_table, write_table
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec, load_segmenter
-from signsplat.perception.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask
 from signsplat.perception.segment import mask_stats, segment_batch
 from signsplat.perception.tables import EVAL_TABLE, MASKS_TABLE  # noqa: F401  (registers)
-
 
 PCK_ALPHA = 0.05
 

@@ -109,7 +109,7 @@ def footage_quality(frames_path: str | os.PathLike, keypoints_path: str | os.Pat
                     out_path: str | os.PathLike, min_score: float = 0.5) -> pd.DataFrame:
     """The ``footage_quality`` table of a sequence (views pooled by frame count); writes
     ``out_path``."""
-    from signsplat.perception.images import read_rgb
+    from signsplat.io.images import read_rgb
 
     frames_path = Path(frames_path)
     frames = read_table(frames_path, "frames")
@@ -162,8 +162,7 @@ def write_overlays(frames_path: str | os.PathLike, masks_path: str | os.PathLike
                    keypoints_path: str | os.PathLike, out_dir: str | os.PathLike,
                    count: int = 4, min_score: float = 0.5) -> list[Path]:
     """``count`` evenly spaced frames of view 0 as overlays ``out_dir/{frame:04d}.png``."""
-    from signsplat.io.images import write_png
-    from signsplat.perception.images import read_mask, read_rgb
+    from signsplat.io.images import read_mask, read_rgb, write_png
 
     frames_path, out_dir = Path(frames_path), Path(out_dir)
     frames = read_table(frames_path, "frames")

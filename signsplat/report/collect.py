@@ -48,6 +48,7 @@ class SceneTables:
     keypoints_2d: Path | None = None  # ground-truth or detected keypoints (close-up crops)
     cameras: pd.DataFrame | None = None
     ablations: pd.DataFrame | None = None
+    regularizer: pd.DataFrame | None = None
     sweep: pd.DataFrame | None = None
     footage_quality: pd.DataFrame | None = None  # footage: detection rates, jitter
     footage_overlays: list[Path] = field(default_factory=list)  # mask + keypoints on frames
@@ -128,6 +129,7 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
     t.footage_overlays = _pngs(perc / "overlays", max_images)
     t.persons = read_parquet(perc / "persons.parquet")
     t.ablations = read_parquet(scene_dir / "ablations.parquet")
+    t.regularizer = read_parquet(scene_dir / "regularizer.parquet")
     t.sweep = read_parquet(scene_dir / "sweep.parquet")
     return t
 

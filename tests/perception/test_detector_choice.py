@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from signsplat.config import ConfigError, load_sequences, validate
-from signsplat.perception.cli import detector_files, detectors_for
+from signsplat.perception.detectors import detector_files, detectors_for
 
 CFG = validate({}, "stages/perception.schema.yaml")
 
@@ -47,3 +47,41 @@ def test_files_each_choice_reads():
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
     assert len(pre["keypoints"]) == 6 and all(f.startswith("models/cache/") and f.endswith(".onnx")
                                               for f in pre["keypoints"])
+
+
+def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
+    """The stage's --device reaches every model spec (onnxruntime providers follow it); the
+    MediaPipe spec takes its settings from the schema only."""
+    import dataclasses
+
+    from signsplat.perception.detectors import detector_specs
+    from signsplat.perception.pretrained.keypointer import MediaPipeSpec
+
+    cfg = {**CFG, "pretrained": {**CFG["pretrained"], "cache": str(tmp_path)}}
+    open(detector_files(cfg, "pretrained")["segmenter"][0], "wb").close()  # model_file checks
+    for detectors in ("shipped", "pretrained"):
+        seg, kp = detector_specs(cfg, detectors, "cpu")
+        assert seg.device == "cpu" and kp.device == "cpu", detectors
+    _, kp = detector_specs(cfg, "pretrained", "cuda:1")
+    assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
+    assert [f.name for f in dataclasses.fields(MediaPipeSpec)
+            if f.default is not dataclasses.MISSING] == []
+
+
+def test_mediapipe_sessions_open_on_the_spec_device(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from signsplat.perception.pretrained import keypointer as kpr
+
+    seen = []
+
+    def fake_session(path, threads, what, device):
+        seen.append(device)
+        size = next(m["size"] for m in kpr.MODELS if m["name"] in what)
+        return SimpleNamespace(get_inputs=lambda: [SimpleNamespace(shape=[1, 3, size, size])])
+
+    monkeypatch.setattr(kpr, "open_session", fake_session)
+    monkeypatch.setattr(kpr, "model_file", lambda cache, name: tmp_path / f"{name}.onnx")
+    spec = kpr.MediaPipeSpec.from_config(CFG["pretrained"], device="cuda:1")
+    kpr.MediaPipeWholeBody(spec, threads=1)
+    assert seen == ["cuda:1"] * len(kpr.MODELS)

@@ -16,8 +16,8 @@ from pretrained_reference import DATA, OUT, SYNTHETIC, model_inputs, summarise
 
 from signsplat.body.joints import KEYPOINT_PARTS, KP_LEFT_HAND, KP_RIGHT_HAND
 from signsplat.config import REPO_ROOT, validate
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.perception.contracts import open_session
-from signsplat.perception.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask
 from signsplat.perception.pretrained.fetch import load_manifest
 from signsplat.perception.pretrained.keypointer import MediaPipeSpec, MediaPipeWholeBody
@@ -153,8 +153,8 @@ def test_handedness_convention_on_ground_truth_and_when_flipped(keypointer):
 
 
 def test_modnet_masks_the_person_not_the_background(astronaut):
-    from signsplat.perception.cli import pretrained_specs
     from signsplat.perception.contracts import load_segmenter
+    from signsplat.perception.detectors import pretrained_specs
     from signsplat.perception.segment import mask_stats, segment_batch
 
     seg, _ = pretrained_specs({**CFG, "pretrained": {**CFG["pretrained"], "cache": str(CACHE)}})
@@ -196,7 +196,7 @@ def _scene(tmp_path, names, empty=()):
 
 
 def test_stage_writes_the_same_keypoints_table_as_the_shipped_models(tmp_path):
-    from signsplat.perception.cli import specs
+    from signsplat.perception.detectors import specs
     from signsplat.perception.stages import detect_sequence
 
     sim = _scene(tmp_path, [SYNTHETIC, SYNTHETIC, "studio6_v01_f0030"], empty=(1,))
@@ -285,7 +285,7 @@ def _two_people() -> np.ndarray:
 def test_stages_take_one_signer_of_two(tmp_path, signer, side):
     from signsplat.io.images import write_png
     from signsplat.io.tables import read_table, write_table
-    from signsplat.perception.cli import pretrained_specs
+    from signsplat.perception.detectors import pretrained_specs
     from signsplat.perception.pretrained.select import SignerMasking, SignerRule
     from signsplat.perception.stages import detect_sequence, segment_sequence
 
@@ -330,7 +330,7 @@ def test_no_person_in_any_frame_names_the_input_and_frames(tmp_path):
     from signsplat.errors import InputError
     from signsplat.io.images import write_png
     from signsplat.io.tables import write_table
-    from signsplat.perception.cli import pretrained_specs
+    from signsplat.perception.detectors import pretrained_specs
     from signsplat.perception.pretrained.select import SignerMasking, SignerRule
     from signsplat.perception.stages import segment_sequence
 

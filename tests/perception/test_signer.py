@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from signsplat.config import validate
-from signsplat.perception.cli import perception_for
+from signsplat.perception.detectors import perception_for
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.select import (SignerRule, SignerSelector, body_boxes,
                                                     parse_signer, person_mask)

@@ -36,10 +36,16 @@ from signsplat.body.joints import NUM_KEYPOINTS
 from signsplat.perception.contracts import ModelContractError, open_session
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.fetch import FetchError, model_file
-from signsplat.perception.pretrained.wholebody import (POSE_FACE_POINTS, POSE_HAND_POINTS,
-                                                       POSE_LEFT_EYE, POSE_RIGHT_EYE, HandResult,
-                                                       WholeBodyResult, left_hand_prob,
-                                                       to_coco_wholebody)
+from signsplat.perception.pretrained.wholebody import (
+    POSE_FACE_POINTS,
+    POSE_HAND_POINTS,
+    POSE_LEFT_EYE,
+    POSE_RIGHT_EYE,
+    HandResult,
+    WholeBodyResult,
+    left_hand_prob,
+    to_coco_wholebody,
+)
 
 # Model facts (MediaPipe's graphs): input size, value range, crop border, SSD strides.
 POSE_DET = dict(name="pose_detection", size=224, range=(-1.0, 1.0), border="zero",
@@ -71,11 +77,15 @@ class MediaPipeSpec:
     min_face_presence: float
     min_score: float
     heatmap_kernel: int
+    #: 'auto' (CUDA when onnxruntime has it), 'cpu' or 'cuda[:N]': the stage's --device
+    device: str
 
     @classmethod
-    def from_config(cls, pretrained: dict, **override) -> MediaPipeSpec:
-        """From a validated ``perception.pretrained`` section (``override`` replaces fields)."""
-        fields = {"cache": pretrained["cache"], **pretrained["keypoints"], **override}
+    def from_config(cls, pretrained: dict, device: str = "auto", **override) -> MediaPipeSpec:
+        """From a validated ``perception.pretrained`` section, run on ``device``
+        (``override`` replaces fields)."""
+        fields = {"cache": pretrained["cache"], **pretrained["keypoints"], "device": device,
+                  **override}
         return cls(**fields)
 
 
@@ -103,12 +113,12 @@ class FrameDebug:
     face_roi: mp.Roi | None = None
 
 
-def _session(cache: str, name: str, size: int, threads: int):
+def _session(cache: str, name: str, size: int, threads: int, device: str):
     try:
         path = model_file(cache, name)
     except FetchError as exc:
         raise ModelContractError(str(exc)) from None
-    sess = open_session(path, threads, f"{name} model")
+    sess = open_session(path, threads, f"{name} model", device)
     shape = list(sess.get_inputs()[0].shape)
     if shape != [1, 3, size, size]:
         raise ModelContractError(f"{path}: {name} expects input (1, 3, {size}, {size}), "
@@ -125,8 +135,8 @@ class MediaPipeWholeBody:
 
     def __init__(self, spec: MediaPipeSpec, threads: int = 1):
         self.spec = spec
-        self.sessions = {m["name"]: _session(spec.cache, m["name"], m["size"], threads)
-                         for m in MODELS}
+        self.sessions = {m["name"]: _session(spec.cache, m["name"], m["size"], threads,
+                                             spec.device) for m in MODELS}
         self.anchors = {m["name"]: mp.ssd_anchors(m["size"], m["strides"])
                         for m in (POSE_DET, FACE_DET)}
         self.prev_roi: mp.Roi | None = None
