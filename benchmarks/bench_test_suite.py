@@ -49,7 +49,7 @@ def run_suite(label: str, checkout: Path, args: list[str]) -> dict:
     start = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", *args], cwd=checkout, env=env,
-        capture_output=True, text=True,
+        capture_output=True, text=True, check=False,
     )
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)

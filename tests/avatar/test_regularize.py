@@ -20,7 +20,7 @@ def _model(body, **reg):
 
 
 def test_neighbourhoods_are_local_connected_and_split_face_from_body(tiny_body):
-    model, cfg = _model(tiny_body, radius=0.08, max_neighbours=6)
+    model, _ = _model(tiny_body, radius=0.08, max_neighbours=6)
     pts = model.canonical_points()
     nb = build_neighbourhoods(pts, model.anchors, model.part, model.faces, model.num_vertices,
                               0.08, 6)
@@ -84,7 +84,7 @@ def test_attribute_similarity_keeps_unlike_points_apart(tiny_body):
     colour = (pts[:, 0] > pts[:, 0].median()).float()[:, None]
     near = build_neighbourhoods(pts, *args, colour, attribute_scale=0.0)
     apart = build_neighbourhoods(pts, *args, colour, attribute_scale=1.0)
-    differs = lambda nb: (colour[nb.idx, 0] != colour[:, None, 0])[nb.mask]  # noqa: E731
+    differs = lambda nb: (colour[nb.idx, 0] != colour[:, None, 0])[nb.mask]
     assert bool(differs(near).any())  # proximity alone joins the two colours
     assert not bool(differs(apart).any())
     # the distance is sqrt(dx^2 + (s da)^2): at s = 0.05 a unit of colour costs 5 cm, more
@@ -100,7 +100,7 @@ def test_face_apart_is_a_switch(tiny_body):
     model, _ = _model(tiny_body)
     pts = model.canonical_points()
     head = model.part == PART_HEAD
-    mixed = lambda nb: (head[:, None] != head[nb.idx])[nb.mask]  # noqa: E731
+    mixed = lambda nb: (head[:, None] != head[nb.idx])[nb.mask]
     args = (pts, model.anchors, model.part, model.faces, model.num_vertices, 0.08, 6)
     assert not bool(mixed(build_neighbourhoods(*args, face_apart=True)).any())
     assert bool(mixed(build_neighbourhoods(*args, face_apart=False)).any())
