@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep quality snakemake-report
+.PHONY: demo test install chromium slurm-packages bench-rasterizer clean-results ablations sweep quality snakemake-report
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -33,7 +33,20 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
-test: $(STAMP) chromium
+# The cluster tests (tests/cluster) run a single-node SLURM cluster on this machine
+# (workflow/cluster/local-slurm.sh; the tests start and stop it). Its Debian packages are
+# installed here when missing and possible; otherwise those tests skip with the reason.
+slurm-packages:
+	@command -v slurmctld >/dev/null 2>&1 && command -v slurmdbd >/dev/null 2>&1 \
+	  && command -v mariadbd >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing slurm-wlm, munge, slurmdbd and mariadb-server for the cluster tests"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	      slurm-wlm munge slurmdbd mariadb-server >/dev/null \
+	      || echo "SLURM could not be installed: the cluster tests will skip with the reason"; \
+	  else echo "SLURM missing and cannot be installed here: the cluster tests will skip"; fi; }
+
+test: $(STAMP) chromium slurm-packages
 	$(BIN)/python -m pytest -q
 
 bench-rasterizer: $(STAMP)

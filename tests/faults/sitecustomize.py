@@ -17,7 +17,8 @@ on disk:
   17 (a crash: no clean-up). With ``<dir>/failed`` present it does nothing, so a retry runs
   clean.
 - ``block``: writes ``<dir>/reached`` and waits until ``<dir>/release`` exists (a stage that
-  hangs until the test kills, cancels or releases it).
+  hangs until the test kills, cancels or releases it; when the process is told to stop, the
+  write is abandoned and the process ends).
 
 ``reached`` is JSON: the stage's pid, ``SLURM_JOB_ID`` (when in a SLURM job) and the files
 finished so far.
@@ -31,6 +32,8 @@ _SPEC = os.environ.get("SIGNSPLAT_TEST_FAULT")
 
 def _install(spec: str) -> None:
     import json
+    import signal
+    import threading
     import time
     from pathlib import Path
 
@@ -42,6 +45,27 @@ def _install(spec: str) -> None:
     if action == "fail-once" and (folder / "failed").exists():
         return
     after = int(after)
+    # A blocked write may sit in a worker thread while the main thread, told to stop
+    # (SIGTERM), waits for that thread: note the signal, whoever handles it, so that the
+    # blocked write gives up as a real one would end.
+    stopping = threading.Event()
+    real_signal = signal.signal
+
+    def noting(handler):
+        def handle(signum, frame):
+            stopping.set()
+            if callable(handler):
+                return handler(signum, frame)
+            raise SystemExit(128 + signum)
+        return handle
+
+    def signal_hook(signum, handler):
+        if signum == signal.SIGTERM and handler not in (signal.SIG_IGN,):
+            handler = noting(handler)
+        return real_signal(signum, handler)
+
+    signal.signal = signal_hook
+    real_signal(signal.SIGTERM, noting(None))
     done: list[str] = []
     busy = [False]  # the hook's own rename is not counted
     fired = [False]
@@ -65,6 +89,8 @@ def _install(spec: str) -> None:
                 (folder / "failed").write_text("")
                 os._exit(17)
             while not (folder / "release").exists():
+                if stopping.is_set():
+                    raise SystemExit(143)
                 time.sleep(0.1)
             done.append(str(args[1]))
         finally:
