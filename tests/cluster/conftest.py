@@ -3,6 +3,9 @@
 again at the end; the tests skip, saying why, where it cannot run (no root, no packages:
 `make slurm-packages`)."""
 
+import contextlib
+import fcntl
+import json
 import os
 import re
 import subprocess
@@ -19,20 +22,57 @@ ACCOUNT = "signsplat"  # the account local-slurm.sh creates
 PARTITION = "main"     # its default partition; the shipped profile says "cpu"
 
 
+USERS = Path("/tmp/signsplat-slurm-users")  # one file per test process using the cluster
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
+
+
+def _alive(pid: int) -> bool:
+    return Path(f"/proc/{pid}").exists()
+
+
 @pytest.fixture(scope="session")
 def slurm_cluster():
-    """The local cluster, running. Started (and stopped afterwards) when not running yet."""
-    if subprocess.run([str(SCRIPT), "status"], capture_output=True).returncode == 0:
-        yield
-        return
-    start = subprocess.run([str(SCRIPT), "start"], capture_output=True, text=True, timeout=300)
-    if start.returncode == 2:  # no root, or the packages are missing
-        pytest.skip(f"no local SLURM cluster: {start.stderr.strip()}")
-    assert start.returncode == 0, f"local-slurm.sh start failed:\n{start.stdout}\n{start.stderr}"
+    """The local cluster, running. Started when not running yet, and then stopped when the
+    last test process using it (pytest-xdist workers, parallel sessions) is done."""
+    with _locked(USERS / "lock"):
+        if subprocess.run([str(SCRIPT), "status"], capture_output=True).returncode != 0:
+            start = subprocess.run([str(SCRIPT), "start"], capture_output=True, text=True,
+                                   timeout=300)
+            if start.returncode == 2:  # no root, or the packages are missing
+                pytest.skip(f"no local SLURM cluster: {start.stderr.strip()}")
+            assert start.returncode == 0, \
+                f"local-slurm.sh start failed:\n{start.stdout}\n{start.stderr}"
+            (USERS / "started").write_text("")
+        (USERS / str(os.getpid())).write_text("")
     try:
         yield
     finally:
-        subprocess.run([str(SCRIPT), "stop"], capture_output=True, timeout=300)
+        with _locked(USERS / "lock"):
+            (USERS / str(os.getpid())).unlink(missing_ok=True)
+            others = [p for p in USERS.iterdir() if p.name.isdigit() and _alive(int(p.name))]
+            if not others and (USERS / "started").exists():
+                subprocess.run([str(SCRIPT), "stop"], capture_output=True, timeout=300)
+                (USERS / "started").unlink()
+
+
+def shared_once(tmp_path_factory, name: str, make):
+    """``make(folder) -> JSON-able value``, computed once per test session even with
+    pytest-xdist workers (the others wait and reuse it)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # shared by the workers of one session
+    done = root / f"{name}.json"
+    with _locked(root / f"{name}.lock"):
+        if not done.exists():
+            done.write_text(json.dumps(make(root / name)))
+    return json.loads(done.read_text())
 
 
 def slurm_args(logdir: Path) -> list[str]:

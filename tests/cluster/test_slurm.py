@@ -23,8 +23,8 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
-from .conftest import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args,
-                       snakemake, tiny_config)
+from .conftest import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, shared_once,
+                       slurm_args, snakemake, tiny_config)
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -32,31 +32,44 @@ pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 FAULT = "fail-once:fit:/tiny1/fit:1"
 
 
-@pytest.fixture(scope="module")
-def slurm_run(slurm_cluster, tmp_path_factory):
-    work = tmp_path_factory.mktemp("slurm_run")
+def _slurm_run(work: Path) -> dict:
+    work.mkdir(parents=True, exist_ok=True)
     cfg = tiny_config(work)
-    marks = work / "fault"
     t0 = time.time()
     res = snakemake("--configfile", str(cfg), *slurm_args(work / "slurm_logs"),
-                    env=fault_env(FAULT, marks))
-    seconds = time.time() - t0
+                    env=fault_env(FAULT, work / "fault"))
     log = res.stdout + res.stderr
     assert res.returncode == 0, log[-6000:]
+    return {"work": str(work), "log": log, "seconds": time.time() - t0}
+
+
+@pytest.fixture(scope="module")
+def slurm_run(slurm_cluster, tmp_path_factory):
+    """The two tiny sequences through the local cluster (once per session), with fit_smplx
+    of tiny1 made to crash once."""
+    run = shared_once(tmp_path_factory, "slurm_run", _slurm_run)
+    work, log = Path(run["work"]), run["log"]
     run_id = re.search(r"SLURM run ID: (\S+)", log).group(1)
     sacct = query_sacct(name=run_id)
     assert sacct is not None, "sacct failed"
     heads = sacct[sacct["step"] == ""].set_index("job")
     return SimpleNamespace(work=work, results=work / "results", log=log, jobs=logged_jobs(log),
-                           sacct=sacct, heads=heads, marks=marks, seconds=seconds)
+                           sacct=sacct, heads=heads, marks=work / "fault",
+                           seconds=run["seconds"])
+
+
+def _local_run(work: Path) -> dict:
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = tiny_config(work)
+    res = snakemake("--cores", "2", "--configfile", str(cfg))
+    assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]
+    return {"work": str(work)}
 
 
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory):
-    work = tmp_path_factory.mktemp("local_run")
-    cfg = tiny_config(work)
-    res = snakemake("--cores", "2", "--configfile", str(cfg))
-    assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]
+    """The same two sequences run locally (once per session)."""
+    work = Path(shared_once(tmp_path_factory, "local_run", _local_run)["work"])
     return SimpleNamespace(work=work, results=work / "results")
 
 

@@ -251,9 +251,15 @@ stop() {
     say "stopped"
 }
 
+locked() {  # one start or stop at a time (parallel test processes)
+    exec 9>>"$STATE.lock"
+    flock 9
+    "$@"
+}
+
 case "${1:-}" in
-    start) start ;;
-    stop) stop ;;
+    start) locked start ;;
+    stop) locked stop ;;
     status) status ;;
     *) echo "usage: $0 start|stop|status" >&2; exit 64 ;;
 esac
