@@ -12,9 +12,16 @@ $(BIN)/python:
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 
-# torch first, pinned: its CPU wheel is taken before anything can ask for a CUDA build.
+# PyTorch first, the CPU build, before anything can ask for torch: PyPI's torch==2.13.0 is a
+# multi-GB CUDA build. TORCH names the build (the +cpu local version makes pip refuse any
+# other) and TORCH_INDEX an extra index that serves it (PyTorch's CPU index; a local wheel
+# folder in pip's own configuration is used too). For a CUDA machine, e.g.:
+#   make TORCH=torch==2.13.0 TORCH_INDEX=https://download.pytorch.org/whl/cu128
+TORCH       ?= torch==2.13.0+cpu
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) "$(TORCH)"
 	$(BIN)/pip install -q -e ".[test]"
 	@touch $(STAMP)
 
@@ -33,9 +40,9 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
-# The cluster tests (tests/cluster) run a single-node SLURM cluster on this machine
-# (workflow/cluster/local-slurm.sh; the tests start and stop it). Its Debian packages are
-# installed here when missing and possible; otherwise those tests skip with the reason.
+# The cluster tests (tests/cluster) run the workflow on a single-node SLURM cluster on this
+# machine (workflow/cluster/local-slurm.sh). Its Debian packages are installed here when missing
+# and possible; otherwise those tests skip with the reason.
 slurm-packages:
 	@command -v slurmctld >/dev/null 2>&1 && command -v slurmdbd >/dev/null 2>&1 \
 	  && command -v mariadbd >/dev/null 2>&1 || { \
@@ -46,8 +53,20 @@ slurm-packages:
 	      || echo "SLURM could not be installed: the cluster tests will skip with the reason"; \
 	  else echo "SLURM missing and cannot be installed here: the cluster tests will skip"; fi; }
 
+# The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
+# pytest prints its time and the slowest tests at the end. The local SLURM cluster is started
+# first where it can be (root and its packages; otherwise the cluster tests say why they skip)
+# and stopped afterwards when this started it.
 test: $(STAMP) chromium slurm-packages
-	$(BIN)/python -m pytest -q
+	@started=0; \
+	if [ "$$(id -u)" = 0 ] && command -v slurmctld >/dev/null 2>&1 \
+	   && ! workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then \
+	  if workflow/cluster/local-slurm.sh start; then started=1; \
+	  else echo "the local SLURM cluster did not start: the cluster tests will say why"; fi; \
+	fi; \
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15; rc=$$?; \
+	if [ $$started = 1 ]; then workflow/cluster/local-slurm.sh stop >/dev/null || true; fi; \
+	exit $$rc
 
 bench-rasterizer: $(STAMP)
 	$(BIN)/python benchmarks/bench_rasterizer.py

@@ -82,7 +82,7 @@ def run_config(work: Path, sheet: Path, avatar_steps: int) -> tuple[Path, Path]:
                                        "groups": ["root", "body"]}]}},
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": avatar_steps, "test_interval": 2, "test_offset": 1,
-                             "log_every": 10, "threads": 1, "checkpoint_every": 1000},
+                             "log_every": 10, "checkpoint_every": 1000},
                    "eval": {"refine_steps": 0, "save_images": 1}},
     }
     path = work / "config.yaml"

@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
     "sheet": ("signsplat.synth.cli", "write a sequence sheet (sheet synth: N signers x M sentences)"),
+    "simulate-training-set": ("signsplat.synth.cli", "simulate the detector training scenes"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
     "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),
@@ -29,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("signsplat.fit.cli", "SMPL-X fitting, multi-view or single view"),
     "colmap-compare": ("signsplat.colmap.cli", "COLMAP reconstruction vs the SMPL-X camera solve"),
     "train-avatar": ("signsplat.avatar.cli", "train the Gaussian-splat avatar"),
-    "evaluate": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),
+    "evaluate-avatar": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),
     "sign": ("signsplat.stitch.cli", "English sentence -> stitched signed video"),
     "report": ("signsplat.report.cli", "write the HTML report"),
 }

@@ -11,6 +11,7 @@ Schemas live in ``workflow/schemas``; a schema may ``$ref`` a sibling file by re
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import os
 from pathlib import Path
@@ -58,7 +59,6 @@ def _registry() -> Registry:
         contents.pop("$schema", None)
         resources.append((uri, Resource.from_contents(contents, default_specification=_SPEC)))
     return Registry().with_resources(resources)
-
 
 
 def _with_defaults(validator_class):
@@ -113,10 +113,12 @@ def deep_merge(base: dict, over: dict) -> dict:
 def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>") -> Any:
     """Validate ``data`` against ``workflow/schemas/<schema_name>``; fill defaults in place.
 
-    Raises :class:`ConfigError` naming the source, key, bad value and what is allowed.
+    ``schema_name`` may name a part of a schema file with a JSON pointer, e.g.
+    ``stages/fit.schema.yaml#/$defs/stage``. Raises :class:`ConfigError` naming the source,
+    key, bad value and what is allowed.
     """
     registry = _registry()
-    schema = registry.contents(schema_name)
+    schema = {"$ref": schema_name} if "#" in schema_name else registry.contents(schema_name)
     validator = _Validator(schema, registry=registry)
     errors = sorted(validator.iter_errors(data), key=lambda e: list(e.absolute_path))
     if errors:
@@ -129,6 +131,50 @@ def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>"
             lines.append(_describe(best if best.absolute_path else err))
         raise ConfigError(f"{source}: " + "; ".join(dict.fromkeys(lines)))
     return data
+
+
+def schema_defaults(schema_name: str, *keys: str) -> Any:
+    """What a schema fills into an empty section: ``validate({}, schema_name)``, then the value
+    at ``keys`` (e.g. ``schema_defaults("stages/perception.schema.yaml", "train")``)."""
+    data = validate({}, schema_name, schema_name)
+    for key in keys:
+        data = data[key]
+    return data
+
+
+def default_mismatches(cls: type, defaults: dict, rename: dict[str, str] | None = None) -> list[str]:
+    """Fields of dataclass ``cls`` whose own default differs from the schema's.
+
+    ``defaults`` is the schema-filled section (:func:`schema_defaults`); ``rename`` maps a
+    field name to its config key where they differ. A field without a default, or whose key
+    the section lacks, carries no second copy and is not compared; lists equal tuples.
+    Returns one line per difference, ``Class.field: code X, schema Y``.
+    """
+    rename = rename or {}
+
+    def plain(v):
+        return [plain(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+    out = []
+    for f in dataclasses.fields(cls):
+        key = rename.get(f.name, f.name)
+        if key not in defaults:
+            continue
+        if f.default is not dataclasses.MISSING:
+            code = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            code = f.default_factory()
+        else:
+            continue
+        if plain(code) != plain(defaults[key]):
+            out.append(f"{cls.__name__}.{f.name}: code {code!r}, schema {defaults[key]!r}")
+    return out
+
+
+def assert_defaults_match(cls: type, section: dict, rename: dict[str, str] | None = None) -> None:
+    """Raise AssertionError listing :func:`default_mismatches` (for tests)."""
+    bad = default_mismatches(cls, section, rename)
+    assert not bad, "; ".join(bad)
 
 
 def load_config(path: str | os.PathLike) -> dict:

@@ -15,6 +15,7 @@ Eye poses are not observable from 2D keypoints and stay zero.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -244,3 +245,41 @@ class KeypointModel(torch.nn.Module):
             return joints, kp, None
         out = self.model(**inputs)
         return out.joints, self.regressor(out), out
+
+
+def load_keypoint_model(body_path: str | os.PathLike, num_betas: int, num_expression: int,
+                        device: torch.device | str = "cpu") -> KeypointModel:
+    """Body model + whole-body regressor of the file ``body_path`` as a :class:`KeypointModel`
+    on ``device``."""
+    from signsplat.body.keypoints import WholeBodyRegressor
+    from signsplat.body.model import BodyModel
+
+    model = BodyModel.from_file(body_path, num_betas=num_betas,
+                                num_expression=num_expression).to(device)
+    regressor = WholeBodyRegressor(model)
+    if isinstance(regressor, torch.nn.Module):
+        regressor = regressor.to(device)
+    return KeypointModel(model, regressor)
+
+
+#: SMPL-X parameter blocks :func:`keypoints_of` passes to the body model when present
+PARAM_BLOCKS = ("betas", "expression", "global_orient", "body_pose", "jaw_pose", "leye_pose",
+                "reye_pose", "left_hand_pose", "right_hand_pose", "transl")
+
+
+def keypoints_of(kpm: KeypointModel, params: dict[str, np.ndarray], batch: int = 64
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joints (T,55,3), keypoints (T,133,3) and vertices (T,V,3), float64 metres, of the
+    SMPL-X parameter blocks ``params`` (name -> (T,k); flat hand poses), posed in batches."""
+    ref = kpm.model.v_template
+    T = params["transl"].shape[0]
+    js, ks, vs = [], [], []
+    with torch.no_grad():
+        for s in range(0, T, batch):
+            inp = {n: torch.as_tensor(np.asarray(params[n][s:s + batch]), dtype=ref.dtype,
+                                      device=ref.device) for n in PARAM_BLOCKS if n in params}
+            j, k, out = kpm(full=True, **inp)
+            js.append(j.double().cpu().numpy())
+            ks.append(k.double().cpu().numpy())
+            vs.append(out.vertices.double().cpu().numpy())
+    return np.concatenate(js), np.concatenate(ks), np.concatenate(vs)

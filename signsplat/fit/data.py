@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from signsplat.body import joints as J
+from signsplat.body import joints as body_joints
 from signsplat.errors import InputError
 from signsplat.fit.cameras import Rig
-from signsplat.io.tables import TableError, read_table, write_table
+from signsplat.geometry.align import camera_centres
+from signsplat.io.images import read_mask, read_rgb
+from signsplat.io.tables import TableError, read_columns, read_table, write_table
 
 SMPLX_BLOCKS = ("betas", "expression", "global_orient", "body_pose", "jaw_pose", "leye_pose",
                 "reye_pose", "left_hand_pose", "right_hand_pose", "transl")
@@ -23,6 +25,13 @@ SMPLX_BLOCKS = ("betas", "expression", "global_orient", "body_pose", "jaw_pose",
 def _read(path, table) -> pd.DataFrame:
     try:
         return read_table(path, table)
+    except TableError as exc:
+        raise InputError(str(exc)) from None
+
+
+def _read_columns(path, columns) -> pd.DataFrame:
+    try:
+        return read_columns(path, columns)
     except TableError as exc:
         raise InputError(str(exc)) from None
 
@@ -67,8 +76,8 @@ def read_keypoints(path: str | os.PathLike, num_views: int,
         raise InputError(f"{path}: keypoints table has no rows")
     kp = df["kp"].to_numpy(np.int64)
     view = df["view"].to_numpy(np.int64)
-    if len(df) and (kp.min() < 0 or kp.max() >= J.NUM_KEYPOINTS):
-        raise InputError(f"{path}: keypoint ids must lie in 0..{J.NUM_KEYPOINTS - 1}")
+    if len(df) and (kp.min() < 0 or kp.max() >= body_joints.NUM_KEYPOINTS):
+        raise InputError(f"{path}: keypoint ids must lie in 0..{body_joints.NUM_KEYPOINTS - 1}")
     if len(df) and (view.min() < 0 or view.max() >= num_views):
         raise InputError(f"{path}: view {int(view.max())} but the rig has {num_views} cameras")
     fr = df["frame"].to_numpy(np.int64)
@@ -79,7 +88,7 @@ def read_keypoints(path: str | os.PathLike, num_views: int,
     seq = np.arange(all_frames.min(), all_frames.max() + 1)
     if df.duplicated(["view", "frame", "kp"]).any():
         raise InputError(f"{path}: duplicate (view, frame, kp) rows")
-    obs = np.zeros((num_views, len(seq), J.NUM_KEYPOINTS, 3))
+    obs = np.zeros((num_views, len(seq), body_joints.NUM_KEYPOINTS, 3))
     ti = fr - seq[0]
     obs[view, ti, kp, 0] = df["x"].to_numpy(np.float64)
     obs[view, ti, kp, 1] = df["y"].to_numpy(np.float64)
@@ -118,14 +127,8 @@ def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> 
     fit's frame numbers; views are 0..V-1 with the sizes ``widths``/``heights (V,)``. A frame
     without a row (or an empty path) gets an empty mask, which the silhouette terms skip.
     """
-    from signsplat.io.images import read_mask
-
     path = Path(path)
-    try:
-        df = pd.read_parquet(path, columns=["view", "frame", "mask"])
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(f"{path}: not a masks or frames table with columns view, frame, "
-                         f"mask ({exc})") from None
+    df = _read_columns(path, ["view", "frame", "mask"])
     W, H = int(np.max(widths)), int(np.max(heights))
     if len(set(np.asarray(widths).tolist())) > 1 or len(set(np.asarray(heights).tolist())) > 1:
         raise InputError(f"{path}: the silhouette terms need one image size for all views, "
@@ -153,8 +156,6 @@ def read_grey_images(frames_df: pd.DataFrame, frames: np.ndarray, widths, height
     (its flow pairs then find nothing to follow)."""
     import cv2
 
-    from signsplat.io.images import read_rgb
-
     V = len(widths)
     W, H = int(np.max(widths)), int(np.max(heights))
     index = {int(f): i for i, f in enumerate(frames)}
@@ -175,17 +176,13 @@ def read_grey_images(frames_df: pd.DataFrame, frames: np.ndarray, widths, height
 def rig_from_frames(frames_df: pd.DataFrame, path: str | os.PathLike) -> Rig:
     """Image sizes per view from each view's first image (no calibration); K is a placeholder
     (identity focal) to be replaced by approximate intrinsics; R = I, t = 0."""
-    import cv2
-
     views = np.unique(frames_df["view"].to_numpy())
     if not np.array_equal(views, np.arange(len(views))):
         raise InputError(f"{path}: views must be 0..{len(views) - 1}, got {views.tolist()}")
     w, h = [], []
     for v in views:
         img_path = frames_df[frames_df["view"] == v]["image_path"].iloc[0]
-        img = cv2.imread(img_path, cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise InputError(f"{img_path}: not a readable image")
+        img = read_rgb(img_path)
         h.append(img.shape[0])
         w.append(img.shape[1])
     V = len(views)
@@ -228,3 +225,27 @@ def write_outputs(out_dir: Path, smplx: pd.DataFrame, cams: pd.DataFrame,
     p1 = write_table(smplx, out_dir / "smplx_fit.parquet", "smplx_params", metadata=meta)
     p2 = write_table(cams, out_dir / "cameras_fit.parquet", "cameras", metadata=meta)
     return p1, p2
+
+
+def read_calibrated_extrinsics(calibration: str | os.PathLike | None, view: int | None = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """(R (V,3,3), t (V,3)) of a calibrated rig's cameras table, for ``camera_init:
+    calibrated`` (only camera ``view`` when given); an InputError names the file when it has
+    no usable extrinsics."""
+    if not calibration:
+        raise InputError("fit.multiview.camera_init: calibrated needs the calibrated cameras: "
+                         "pass --calibration (a cameras table with R and t), or choose "
+                         "another camera_init")
+    rig, _ = read_rig(calibration, with_extrinsics=True)
+    ortho = np.abs(np.einsum("vij,vkj->vik", rig.R, rig.R) - np.eye(3)).max(axis=(1, 2))
+    bad = np.nonzero((ortho > 1e-4) | (np.linalg.det(rig.R) < 0))[0]
+    if len(bad):
+        raise InputError(f"{calibration}: camera(s) {bad.tolist()} have an R that is not a "
+                         "rotation (world-to-camera, det +1); fit.multiview.camera_init "
+                         "calibrated uses R and t as they are")
+    if rig.num_views > 1 and np.ptp(camera_centres(rig.R, rig.t), axis=0).max() < 1e-6:
+        raise InputError(f"{calibration}: every camera sits at the same place - the table has "
+                         "no calibrated extrinsics; choose another fit.multiview.camera_init")
+    if view is not None:
+        return rig.R[view:view + 1], rig.t[view:view + 1]
+    return rig.R, rig.t

@@ -10,10 +10,17 @@ centroid) per frame; PA- errors use a per-frame similarity (Procrustes) instead.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
+import pandas as pd
 import torch
 
+from signsplat.errors import InputError
+from signsplat.fit.bodyfit import KeypointModel, keypoints_of
 from signsplat.fit.cameras import Rig, project
+from signsplat.fit.data import read_rig, read_smplx
+from signsplat.fit.sequence import FitResult
 from signsplat.geometry.align import Similarity, rotation_angle_deg, umeyama  # noqa: F401
 
 
@@ -148,7 +155,7 @@ def image_errors(fit_verts: np.ndarray, fit_rig: Rig, gt_verts: np.ndarray, gt_r
 
 # --- the fit_eval table ---------------------------------------------------------------------
 
-from signsplat.body import joints as J  # noqa: E402
+from signsplat.body import joints as body_joints  # noqa: E402
 from signsplat.io.tables import Table, register_table  # noqa: E402
 
 FIT_EVAL = register_table(Table(
@@ -174,15 +181,15 @@ FIT_EVAL = register_table(Table(
 #: SMPL-X joints, 'kp' = the 133 whole-body keypoints. Root: index into the set's indices,
 #: 'centroid', or None.
 BODY_JOINTS = tuple(range(22))
-UPPER_BODY_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+UPPER_BODY_JOINTS = tuple(body_joints.JOINT_INDEX[n] for n in (
     "pelvis", "spine1", "spine2", "spine3", "neck", "left_collar", "right_collar", "head",
     "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist"))
 PARTS_3D = {
     "body": ("joints", BODY_JOINTS, 0),
     "upper_body": ("joints", UPPER_BODY_JOINTS, 0),
-    "left_hand": ("kp", J.KP_LEFT_HAND, 0),
-    "right_hand": ("kp", J.KP_RIGHT_HAND, 0),
-    "face": ("kp", J.KP_FACE, "centroid"),
+    "left_hand": ("kp", body_joints.KP_LEFT_HAND, 0),
+    "right_hand": ("kp", body_joints.KP_RIGHT_HAND, 0),
+    "face": ("kp", body_joints.KP_FACE, "centroid"),
 }
 
 
@@ -216,7 +223,79 @@ def pose_errors(fit_joints: np.ndarray, fit_kp: np.ndarray, gt_joints: np.ndarra
 def reprojection_rows(uv: np.ndarray, obs: np.ndarray) -> list[tuple[str, str, float, str]]:
     """2D reprojection error per part: uv (V,T,133,2) of the fit, obs (V,T,133,3) fitted input."""
     rows = [("reprojection", "all", reprojection_px(uv, obs), "px")]
-    for part, idx in J.KEYPOINT_PARTS.items():
+    for part, idx in body_joints.KEYPOINT_PARTS.items():
         idx = list(idx)
         rows.append(("reprojection", part, reprojection_px(uv[:, :, idx], obs[:, :, idx]), "px"))
     return rows
+
+
+def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode: str,
+                   source: str, gt_smplx: str | os.PathLike | None,
+                   gt_cameras: str | os.PathLike | None, view: int | None = None
+                   ) -> pd.DataFrame:
+    """The ``fit_eval`` table (:data:`FIT_EVAL`) of a fit: reprojection of the cleaned
+    observations ``obs (V,T,133,3)``; with the ground-truth tables, cameras, pose errors and
+    image errors. ``source``: detected or ground_truth; ``view``: the camera of a one-view
+    fit of a multi-camera scene."""
+    rows: list[tuple[str, str, float, str]] = []
+    T = len(result.frames)
+    _, fit_kp, _ = keypoints_of(kpm, result.params)
+    rig = result.rig
+    uv, _ = project(torch.as_tensor(fit_kp), torch.as_tensor(rig.K), torch.as_tensor(rig.R),
+                    torch.as_tensor(rig.t))
+    rows += reprojection_rows(uv.numpy(), obs)
+    if gt_cameras:
+        gt_rig, _ = read_rig(gt_cameras)
+        if view is not None:
+            gt_rig = Rig(K=gt_rig.K[view:view + 1], R=gt_rig.R[view:view + 1],
+                         t=gt_rig.t[view:view + 1], width=gt_rig.width[view:view + 1],
+                         height=gt_rig.height[view:view + 1])
+        if gt_rig.num_views != rig.num_views:
+            raise InputError(f"{gt_cameras}: {gt_rig.num_views} cameras, the fit has "
+                             f"{rig.num_views}")
+        ok = [v for v, s in enumerate(result.camera_status) if s != "no_detections"]
+
+        def sub(r):
+            return Rig(K=r.K[ok], R=r.R[ok], t=r.t[ok], width=r.width[ok], height=r.height[ok])
+
+        cam = camera_errors(sub(rig), sub(gt_rig))
+        sim, _ = gauge_alignment(sub(rig), sub(gt_rig))
+        if mode == "multiview":
+            rows += [("camera_rotation", "cameras", cam["rotation_deg_mean"], "deg"),
+                     ("camera_rotation_max", "cameras", cam["rotation_deg_max"], "deg"),
+                     ("camera_centre", "cameras", cam["centre_m_mean"], "m"),
+                     ("camera_centre_max", "cameras", cam["centre_m_max"], "m"),
+                     ("camera_focal_rel", "cameras", cam["focal_rel_err_mean"], "1"),
+                     ("gauge_scale", "cameras", cam["scale"], "1")]
+    else:
+        sim = None
+    if gt_smplx:
+        gt_params, gt_frames = read_smplx(gt_smplx)
+        pos = {int(f): i for i, f in enumerate(gt_frames)}
+        idx = [i for i, f in enumerate(result.frames) if int(f) in pos]
+        if not idx:
+            raise InputError(f"{gt_smplx}: no frame in common with the fit")
+        gsel = [pos[int(result.frames[i])] for i in idx]
+        gj, gk, gv = keypoints_of(kpm, {k: v[gsel] for k, v in gt_params.items()})
+        fj, fk, fv = keypoints_of(kpm, {k: v[idx] for k, v in result.params.items()})
+        if gt_cameras:
+            rows += image_errors(fv, rig, gv, gt_rig, kpm.model.part_labels.cpu().numpy())
+        if sim is None:  # no GT cameras: align the whole sequence's body joints
+            sim = umeyama(fj.reshape(-1, 3), gj.reshape(-1, 3))
+        fj, fk = sim.apply(fj), sim.apply(fk)
+        fitted = np.asarray(result.provenance)[idx] == "fitted"
+        pose_rows = pose_errors(fj[fitted], fk[fitted], gj[fitted], gk[fitted])
+        jit = {(m, p): v for m, p, v, _ in pose_errors(fj, fk, gj, gk) if m == "jitter"}
+        rows += [(m, p, jit[(m, p)] if m == "jitter" else v, u) for m, p, v, u in pose_rows]
+    total = float(result.seconds.get("total", float("nan")))
+    rows.append(("seconds", "all", total, "s"))
+    if "cpu" in result.seconds:  # CPU time of this process (wall time suffers on shared CPUs)
+        rows.append(("cpu_seconds", "all", float(result.seconds["cpu"]), "s"))
+    rows.append(("frames_fitted", "all", float((result.provenance == "fitted").sum()), "1"))
+    df = pd.DataFrame(rows, columns=["metric", "part", "value", "unit"])
+    df.insert(0, "keypoints", source)
+    df.insert(0, "mode", mode)
+    df.insert(0, "scene", str(result.log.get("scene", "")))
+    df["seconds_total"] = total
+    df["seconds_per_frame"] = total / max(T, 1)
+    return df

@@ -122,8 +122,8 @@ def one_euro(kp: np.ndarray, times: np.ndarray, min_cutoff: float, beta: float,
 
 def clean_keypoints(kp: np.ndarray, times: np.ndarray, *, min_score: float,
                     outlier_radius: int, outlier_px: float, one_euro_min_cutoff: float,
-                    one_euro_beta: float, one_euro_d_cutoff: float = 1.0,
-                    use_filter: bool = True) -> tuple[np.ndarray, CleanStats]:
+                    one_euro_beta: float, one_euro_d_cutoff: float,
+                    use_filter: bool) -> tuple[np.ndarray, CleanStats]:
     """Sanitise, reject temporal outliers, then One-Euro filter one view's tracks.
 
     kp: (T, K, 3) pixels + score; times: (T,) seconds. Returns (clean kp, stats).
@@ -135,3 +135,28 @@ def clean_keypoints(kp: np.ndarray, times: np.ndarray, *, min_score: float,
     stats.outliers = n_out
     stats.used = int((kp[..., 2] > 0).sum())
     return kp, stats
+
+
+def clean_observations(obs: np.ndarray, times: np.ndarray, heights: np.ndarray, cfg: dict
+                       ) -> tuple[np.ndarray, CleanStats]:
+    """Clean every view with :func:`clean_keypoints` (NaN and low scores, temporal outliers,
+    One-Euro), then raise the kept confidences to ``confidence_power``.
+
+    obs (V,T,133,3); times (T,) seconds; heights (V,) image heights in pixels (the outlier
+    threshold is a fraction of them); cfg the validated ``fit`` section. Returns the cleaned
+    observations (same shape) and the summed counts.
+    """
+    fc = cfg["filter"]
+    out = np.empty_like(obs)
+    stats = CleanStats()
+    for v in range(obs.shape[0]):
+        out[v], st = clean_keypoints(
+            obs[v], times, min_score=cfg["min_score"], outlier_radius=fc["outlier_radius"],
+            outlier_px=fc["outlier_fraction"] * float(heights[v]),
+            one_euro_min_cutoff=fc["min_cutoff_hz"], one_euro_beta=fc["beta"],
+            one_euro_d_cutoff=fc["d_cutoff_hz"], use_filter=fc["enabled"])
+        stats = stats + st
+    power = float(cfg["confidence_power"])
+    if power != 1.0:  # ignored keypoints keep their 0
+        out[..., 2] = out[..., 2] ** power
+    return out, stats

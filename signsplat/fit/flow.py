@@ -103,8 +103,8 @@ def trusted_flow(first: np.ndarray, second: np.ndarray, mask_a: np.ndarray, mask
     return fwd
 
 
-def flow_targets(images: np.ndarray, masks: np.ndarray, frames: np.ndarray, gaps=(1, 2, 4),
-                 consistency_px: float = 0.5, preset: str = "medium", dtype=torch.float32,
+def flow_targets(images: np.ndarray, masks: np.ndarray, frames: np.ndarray, gaps,
+                 consistency_px: float, preset: str, dtype=torch.float32,
                  device="cpu", progress=None) -> FlowTargets:
     """Trusted flow of every view's frame pairs. ``images (V,T,H,W)`` uint8 grey,
     ``masks (V,T,H,W)`` bool, ``frames (T,)`` frame numbers. Pairs with an empty mask are
@@ -203,7 +203,7 @@ def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: 
 
 
 def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
-              clamp_px: float = 2.0, cache=None, max_vertices: int = 0) -> torch.Tensor:
+              clamp_px: float, cache=None, max_vertices: int = 0) -> torch.Tensor:
     """The flow term of the batch: ``uv (V,B,N,2)``, ``z (V,B,N)`` the projections of the
     batch's vertices, ``frames (B,)`` their indices in the targets. ``cache``: a
     :class:`~signsplat.fit.silhouette.MatchCache` keeping the matches between re-matchings

@@ -16,7 +16,7 @@
 3. Stages (config ``fit.multiview.stages``) run with Adam: first per chunk of frames, each chunk
    warm-started from the previous chunk's last frame (cameras fixed), then jointly over the
    whole sequence with betas and the free cameras; the final joint stage is Levenberg-Marquardt
-   over everything (:mod:`signsplat.fit.lm`), which the torso chain's conditioning needs.
+   over everything (:mod:`signsplat.fit.levenberg_marquardt`), which the torso chain's conditioning needs.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import torch
 
-from signsplat.body import joints as J
+from signsplat.body import joints as body_joints
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
@@ -42,7 +42,7 @@ from signsplat.geometry.align import umeyama
 log = logging.getLogger(__name__)
 
 #: Keypoints that move rigidly with the head and torso: nose, eyes, ears, shoulders, hips, face.
-PNP_KEYPOINTS = tuple(range(0, 7)) + (11, 12) + J.KP_FACE
+PNP_KEYPOINTS = tuple(range(0, 7)) + (11, 12) + body_joints.KP_FACE
 #: Keypoints of the multi-view consistency test (camera_init auto): the COCO body points down
 #: to the hips (the most reliable detections), over the first frames.
 CONSISTENCY_KEYPOINTS = tuple(range(0, 13))
@@ -124,7 +124,7 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
     prior = rig_prior(K, width, height, V, cfg["camera_prior"]["arc_degrees"],
                       cfg["camera_prior"]["distance"], chest)
     R, t = prior.R.copy(), prior.t.copy()
-    mode = cfg.get("camera_init", "pnp")
+    mode = cfg["camera_init"]
     status, rms = [], np.full(V, np.nan)
     cands: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
     for v in range(V):
@@ -287,7 +287,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         raise ValueError("no frame has enough keypoints to fit")
     views_obs = (obs[..., 2] > 0).sum(axis=(1, 2))
     init = {"body_pose": rest_body_pose(cfg, T)}
-    if mv.get("camera_init") == "calibrated":
+    if mv["camera_init"] == "calibrated":
         if extrinsics is None:
             raise ValueError("camera_init calibrated needs the calibrated extrinsics")
         rig0 = Rig(K=np.asarray(K, float), R=np.asarray(extrinsics[0], float),
@@ -305,7 +305,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     else:
         kp0 = neutral_keypoints(kpm, dtype, device)
         rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
-        ok = ("pnp",) if mv.get("camera_init") == "pnp" else ("pnp", "pnp_ransac", "prior")
+        ok = ("pnp",) if mv["camera_init"] == "pnp" else ("pnp", "pnp_ransac", "prior")
         solved = [v for v in range(V) if status[v] in ok]
         if not solved:
             raise ValueError("no camera could be initialised: too few head/torso keypoints in "
@@ -336,8 +336,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                             fc["preset"], dtype=dtype, device=device)
         log.info("optical flow: %d frame pairs (gaps %s), %.1f s", flow.num_pairs,
                  fc["gaps"], time.perf_counter() - tf)
-        flow_args = {"flow": flow, "flow_clamp_px": fc["clamp_px"],
-                     "flow_max_vertices": fc["max_vertices"]}
+        flow_args = {"flow": flow}
     problem = make_problem(kpm, obs, cfg, frames, weights=weights,
                            dtype=dtype, device=device, up=up, level_cameras=up is not None,
                            masks=masks, **flow_args)
@@ -345,7 +344,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)
         ts = time.perf_counter()
-        if st_cfg.get("warm_start", False):
+        if stage.warm_start:
             history[stage.name] = run_warm_started(problem, params, cams, stage,
                                                    mv["chunk"], fitted)
         else:

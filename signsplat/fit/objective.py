@@ -11,50 +11,54 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from signsplat.body import joints as J
+from signsplat.body import joints as body_joints
 from signsplat.fit.cameras import project
 from signsplat.fit.robust import kernel as robust_kernel
 
 
 @dataclass
 class Weights:
-    """Loss weights (config section ``fit.weights``; units in brackets)."""
+    """Loss weights (config section ``fit.weights``, where their defaults live; units in
+    brackets). Built with :meth:`from_config` from the validated section."""
 
-    reprojection: float = 1.0  # robust px^2 per keypoint
-    body_pose: float = 2.0  # rad^-2 on body_pose (arms, head)
-    torso_pose: float = 30.0  # rad^-2 on spine1..3, neck and collars (signers move the torso little)
-    leg_pose: float = 50.0  # rad^-2 on hips/knees/ankles/feet (usually out of view)
-    shape: float = 5.0  # on betas^2
-    expression: float = 1.0  # on expression^2
-    jaw: float = 10.0  # rad^-2 on jaw_pose
-    hand_pose: float = 0.5  # rad^-2 on anatomical hand angles (pull towards the flat hand)
-    smooth_keypoints: float = 100.0  # m^-2 on 3D keypoint accelerations
-    smooth_pose: float = 100.0  # rad^-2 on pose-parameter accelerations
-    behind_camera: float = 100.0  # m^-2 on depth below the near plane
-    anchor: float = 0.0  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
-    upright: float = 0.0  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
-    camera_anchor: float = 0.0  # rad^-2 / m^-2 on the free cameras' change from their init
+    reprojection: float  # robust px^2 per keypoint
+    body_pose: float  # rad^-2 on body_pose (arms, head)
+    torso_pose: float  # rad^-2 on spine1..3, neck and collars (signers move the torso little)
+    leg_pose: float  # rad^-2 on hips/knees/ankles/feet (usually out of view)
+    shape: float  # on betas^2
+    expression: float  # on expression^2
+    jaw: float  # rad^-2 on jaw_pose
+    hand_pose: float  # rad^-2 on anatomical hand angles (pull towards the flat hand)
+    smooth_keypoints: float  # m^-2 on 3D keypoint accelerations
+    smooth_pose: float  # rad^-2 on pose-parameter accelerations
+    behind_camera: float  # m^-2 on depth below the near plane
+    anchor: float  # rad^-2 / m^-2 on the distance to the initial estimate (single view)
+    upright: float  # on |pelvis up axis - world up|^2 (standing signer, multi-view)
+    camera_anchor: float  # rad^-2 / m^-2 on the free cameras' change from their init
 
     @classmethod
-    def from_config(cls, cfg: dict | None) -> "Weights":
-        cfg = dict(cfg or {})
+    def from_config(cls, cfg: dict) -> "Weights":
+        """From the validated ``fit.weights`` section (with any overrides applied); a missing
+        or unknown weight raises ValueError naming it."""
         known = {f.name for f in fields(cls)}
         unknown = set(cfg) - known
-        if unknown:
-            raise ValueError(f"unknown loss weight(s) {sorted(unknown)}; known {sorted(known)}")
+        missing = known - set(cfg)
+        if unknown or missing:
+            raise ValueError(f"fit.weights: unknown {sorted(unknown)}, missing "
+                             f"{sorted(missing)} (validate the fit section first)")
         return cls(**cfg)
 
 
-TORSO_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+TORSO_JOINTS = tuple(body_joints.JOINT_INDEX[n] for n in (
     "spine1", "spine2", "spine3", "neck", "left_collar", "right_collar"))
-LEG_JOINTS = tuple(J.JOINT_INDEX[n] for n in (
+LEG_JOINTS = tuple(body_joints.JOINT_INDEX[n] for n in (
     "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
     "left_foot", "right_foot"))
 
 
 def body_pose_weights(w: Weights, dtype=torch.float32, device="cpu") -> torch.Tensor:
     """Per-value weights (63,) of the body-pose prior: legs heavier than the upper body."""
-    per_joint = torch.full((J.NUM_BODY_JOINTS,), w.body_pose, dtype=dtype, device=device)
+    per_joint = torch.full((body_joints.NUM_BODY_JOINTS,), w.body_pose, dtype=dtype, device=device)
     for j in LEG_JOINTS:
         per_joint[j - 1] = w.leg_pose
     for j in TORSO_JOINTS:
@@ -68,7 +72,7 @@ LIMB_KEYPOINTS = (7, 8, 9, 10)
 #: Hand keypoints rigid with the wrist (wrist, thumb CMC and the four MCP joints of each hand):
 #: the optional part ``palms`` reweights them, so the wrist orientation can be solved before
 #: the fingers.
-PALM_KEYPOINTS = tuple(base + k for base in (J.KP_LEFT_HAND[0], J.KP_RIGHT_HAND[0])
+PALM_KEYPOINTS = tuple(base + k for base in (body_joints.KP_LEFT_HAND[0], body_joints.KP_RIGHT_HAND[0])
                        for k in (0, 1, 5, 9, 13, 17))
 
 
@@ -76,8 +80,8 @@ def part_weight_vector(part_weights: dict[str, float], dtype=torch.float32,
                        device="cpu") -> torch.Tensor:
     """Per-keypoint weights (133,) from part weights (keys of ``joints.KEYPOINT_PARTS``, plus
     ``limbs`` for :data:`LIMB_KEYPOINTS` and ``palms`` for :data:`PALM_KEYPOINTS`)."""
-    w = torch.zeros(J.NUM_KEYPOINTS, dtype=dtype, device=device)
-    for part, idx in J.KEYPOINT_PARTS.items():
+    w = torch.zeros(body_joints.NUM_KEYPOINTS, dtype=dtype, device=device)
+    for part, idx in body_joints.KEYPOINT_PARTS.items():
         w[list(idx)] = float(part_weights.get(part, 1.0))
     if "limbs" in part_weights:
         w[list(LIMB_KEYPOINTS)] = float(part_weights["limbs"])
@@ -132,12 +136,12 @@ def smoothness(kp3d: torch.Tensor, pose: torch.Tensor, contiguous: torch.Tensor 
 def rest_pose_vector(rest_pose: dict[str, list[float]] | None, dtype=torch.float32,
                      device="cpu") -> torch.Tensor:
     """Body-pose prior mean (63,) from ``{joint name: axis-angle}`` (other joints 0)."""
-    out = torch.zeros(J.NUM_BODY_JOINTS * 3, dtype=dtype, device=device)
+    out = torch.zeros(body_joints.NUM_BODY_JOINTS * 3, dtype=dtype, device=device)
     for name, aa in (rest_pose or {}).items():
-        if name not in J.JOINT_INDEX or not 1 <= J.JOINT_INDEX[name] <= J.NUM_BODY_JOINTS:
+        if name not in body_joints.JOINT_INDEX or not 1 <= body_joints.JOINT_INDEX[name] <= body_joints.NUM_BODY_JOINTS:
             raise ValueError(f"rest_pose: {name!r} is not a body joint (joints 1..21 of "
                              "signsplat.body.joints.SMPLX_JOINT_NAMES)")
-        j = J.JOINT_INDEX[name] - 1
+        j = body_joints.JOINT_INDEX[name] - 1
         out[3 * j:3 * j + 3] = torch.as_tensor(aa, dtype=dtype)
     return out
 

@@ -11,8 +11,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
+from signsplat.fit.bodyfit import KeypointModel, keypoints_of
+from signsplat.fit.cameras import project
+from signsplat.fit.data import read_frames
+from signsplat.fit.sequence import FitResult
 from signsplat.io.atomic import atomic_path
+from signsplat.io.images import read_rgb
 
 BODY_EDGES = ((0, 1), (0, 2), (1, 3), (2, 4), (5, 6), (5, 7), (7, 9), (6, 8), (8, 10), (5, 11),
               (6, 12), (11, 12), (11, 13), (13, 15), (12, 14), (14, 16))
@@ -86,3 +92,38 @@ def pick_frames(frames: np.ndarray, provenance: np.ndarray, count: int) -> list[
         return []
     pos = np.linspace(0, len(idx) - 1, min(count, len(idx))).round().astype(int)
     return [int(idx[i]) for i in np.unique(pos)]
+
+
+def write_overlays(kpm: KeypointModel, result: FitResult, obs: np.ndarray, frames_path,
+                   out_dir: Path, cfg: dict, view: int | None = None) -> list[Path]:
+    """Overlay PNGs ``overlays/view{v:02d}_frame{f:04d}.png`` in ``out_dir`` of a few fitted
+    frames per view (config ``fit.overlay``), drawn on the images of the frames table
+    ``frames_path``; ``view``: the source camera of a one-view fit."""
+    oc = cfg["overlay"]
+    (out_dir / "overlays").mkdir(parents=True, exist_ok=True)
+    df = read_frames(frames_path)
+    pos = pick_frames(result.frames, result.provenance, oc["frames_per_view"])
+    if not pos:
+        return []
+    sub = {k: v[pos] for k, v in result.params.items()}
+    _, kp, verts = keypoints_of(kpm, sub)
+    rig = result.rig
+    step = max(1, verts.shape[1] // 3000)
+    allpts = np.concatenate([kp, verts[:, ::step]], axis=1)
+    uv, z = project(torch.as_tensor(allpts), torch.as_tensor(rig.K), torch.as_tensor(rig.R),
+                    torch.as_tensor(rig.t))
+    uv = uv.numpy()
+    uv[z.numpy() <= 0.05] = np.nan
+    paths = []
+    for v in range(min(rig.num_views, oc["max_views"])):
+        src_view = v if view is None else view
+        for i, p in enumerate(pos):
+            f = int(result.frames[p])
+            row = df[(df["view"] == src_view) & (df["frame"] == f)]
+            if row.empty:
+                continue
+            img = read_rgb(row["image_path"].iloc[0])
+            drawn = draw_overlay(img, uv[v, i, :133], obs[v, p], uv[v, i, 133:])
+            paths.append(write_overlay(out_dir / "overlays" / f"view{v:02d}_frame{f:04d}.png",
+                                       drawn))
+    return paths

@@ -33,7 +33,7 @@ from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams, Rig, pnp
 from signsplat.fit.multiview import PNP_KEYPOINTS, median_observation, neutral_keypoints
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
-                                  run_warm_started)
+                                  run_warm_started, stage_config)
 
 log = logging.getLogger(__name__)
 
@@ -131,8 +131,9 @@ class NeutralPoseInitialiser:
                             device=self.device)
         problem = make_problem(self.kpm, obs_h, self.cfg, dtype=self.dtype, device=self.device)
         w = problem.weights
-        stage = Stage(name="hypotheses", iterations=sv["hypothesis_iterations"],
-                      lr=sv["hypothesis_lr"], groups=("root",), smooth=False)
+        stage = Stage.from_config(stage_config(
+            name="hypotheses", iterations=sv["hypothesis_iterations"], lr=sv["hypothesis_lr"],
+            groups=["root"], smooth=False))
         run_stage(problem, params, cams, stage)
         with torch.no_grad():
             _, kp3d, _ = self.kpm(**params.model_inputs())

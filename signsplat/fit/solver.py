@@ -36,30 +36,42 @@ GROUPS = ("betas", "root", "body", "hands", "face", "cameras")
 SILHOUETTE_TERMS = ("inside", "cover")
 
 
+#: the part of the fit schema that holds a stage (its defaults live there)
+STAGE_SCHEMA = "stages/fit.schema.yaml#/$defs/stage"
+
+
 @dataclass
 class Stage:
-    """One optimisation stage (config ``fit.<mode>.stages[i]``)."""
+    """One optimisation stage (config ``fit.<mode>.stages[i]``; defaults in the schema).
+
+    Build it with :meth:`from_config` from a validated stage dict (:func:`stage_config` fills
+    the defaults of a stage written in code). The fields with a value here stand for a
+    setting the schema leaves absent, which means "off".
+    """
 
     name: str
     iterations: int
     lr: float
     groups: tuple[str, ...]
+    smooth: bool
+    #: run chunk by chunk, each chunk starting from the previous one's last frame
+    warm_start: bool
+    final_lr_fraction: float
+    #: adam (cosine-decayed lr), lbfgs (strong Wolfe line search) or lm (per-frame
+    #: Levenberg-Marquardt, cameras and betas fixed: signsplat.fit.levenberg_marquardt; lr
+    #: unused)
+    optimizer: str
     parts: dict[str, float] = field(default_factory=dict)  # keypoint part weights
     lr_scale: dict[str, float] = field(default_factory=dict)  # per group, relative to lr
-    smooth: bool = True
-    final_lr_fraction: float = 0.05
     sigma_px: float | None = None  # robust-kernel scale of this stage (None: the problem's)
-    #: adam (cosine-decayed lr), lbfgs (strong Wolfe line search) or lm (per-frame
-    #: Levenberg-Marquardt, cameras and betas fixed: signsplat.fit.lm; lr unused)
-    optimizer: str = "adam"
     #: weights of the mask terms (signsplat.fit.silhouette): {"inside": w, "cover": w} in
-    #: px^-2; both 0 (the default) = the masks are not used and nothing is computed
+    #: px^-2; none given = the masks are not used and nothing is computed
     silhouette: dict[str, float] = field(default_factory=dict)
     #: Adam steps between two contour matchings of the cover term and two choices of the
     #: flow term's vertices (1 = every step)
     rematch_every: int = 1
-    #: weight of the optical-flow term (signsplat.fit.flow) in px^-2; 0 (the default) = the
-    #: images are not read and no flow is computed
+    #: weight of the optical-flow term (signsplat.fit.flow) in px^-2; 0 = the images are not
+    #: read and no flow is computed
     flow: float = 0.0
 
     def __post_init__(self):
@@ -81,33 +93,50 @@ class Stage:
 
     @classmethod
     def from_config(cls, cfg: dict) -> Stage:
+        """From a validated stage dict (the schema has filled its defaults)."""
         groups = tuple(cfg["groups"])
         bad = set(groups) - set(GROUPS)
         if bad:
             raise ValueError(f"stage {cfg.get('name')!r}: unknown group(s) {sorted(bad)}; "
                              f"known {list(GROUPS)}")
+        optional = {k: cfg[k] for k in ("sigma_px", "rematch_every", "flow") if k in cfg}
         return cls(name=cfg["name"], iterations=int(cfg["iterations"]), lr=float(cfg["lr"]),
-                   groups=groups, parts=dict(cfg.get("parts", {})),
-                   lr_scale=dict(cfg.get("lr_scale", {})), smooth=bool(cfg.get("smooth", True)),
-                   final_lr_fraction=float(cfg.get("final_lr_fraction", 0.05)),
-                   sigma_px=cfg.get("sigma_px"), optimizer=cfg.get("optimizer", "adam"),
-                   silhouette=dict(cfg.get("silhouette", {})),
-                   rematch_every=int(cfg.get("rematch_every", 1)),
-                   flow=float(cfg.get("flow", 0.0)))
+                   groups=groups, smooth=bool(cfg["smooth"]),
+                   warm_start=bool(cfg["warm_start"]),
+                   final_lr_fraction=float(cfg["final_lr_fraction"]),
+                   optimizer=cfg["optimizer"], parts=dict(cfg.get("parts", {})),
+                   lr_scale=dict(cfg.get("lr_scale", {})),
+                   silhouette=dict(cfg.get("silhouette", {})), **optional)
+
+
+def stage_config(**settings) -> dict:
+    """A stage dict written in code (e.g. the single-view hypotheses' stage), validated with
+    the schema's defaults filled in: ``Stage.from_config(stage_config(name=..., ...))``."""
+    from signsplat.config import validate
+
+    return validate(dict(settings), STAGE_SCHEMA, f"stage {settings.get('name')!r}")
+
+
+def stages_using(stages: list[dict], *terms: str) -> list[str]:
+    """Names of the stage configs whose :class:`Stage` has any of the properties ``terms``
+    (``uses_silhouette``, ``uses_flow``)."""
+    return [s["name"] for s in stages
+            if any(getattr(Stage.from_config(s), term) for term in terms)]
 
 
 @dataclass
 class Problem:
     """Everything a stage needs besides the parameters.
 
-    obs (V,T,133,3) torch; contiguous (T-2,) bool; robust kernel name and scale in pixels.
+    obs (V,T,133,3) torch; robust kernel name and scale in pixels (config ``fit.robust``);
+    contiguous (T-2,) bool. Build it with :func:`make_problem` from the validated config.
     """
 
     kpm: KeypointModel
     obs: torch.Tensor
     weights: obj.Weights
-    kernel: str = "geman_mcclure"
-    sigma_px: float = 10.0
+    kernel: str
+    sigma_px: float
     contiguous: torch.Tensor | None = None
     anchor: dict[str, torch.Tensor] = field(default_factory=dict)
     pose_mean: torch.Tensor | None = None  # (63,) body-pose prior mean
@@ -118,16 +147,15 @@ class Problem:
     silhouette: SilhouetteTargets | None = None
     #: flow fields for stages with a flow weight (None: no images were given)
     flow: FlowTargets | None = None
-    flow_clamp_px: float = 2.0
-    flow_max_vertices: int = 0  # per frame pair (0 = all that are seen)
+    #: config ``fit.multiview.flow`` (clamp_px, max_vertices) when ``flow`` is given
+    flow_settings: dict = field(default_factory=dict)
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
                  level_cameras: bool = False, masks: np.ndarray | None = None,
-                 flow: FlowTargets | None = None, flow_clamp_px: float = 2.0,
-                 flow_max_vertices: int = 0) -> Problem:
+                 flow: FlowTargets | None = None) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -135,7 +163,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     vertical of the upright prior; with ``level_cameras`` (and ``up`` given, i.e. the rig's
     x axes span a plane) the vertical is recomputed from the current cameras in every step.
     ``masks (V,T,H,W)`` bool person masks: the targets of stages with silhouette weights.
-    ``flow``: the flow fields of stages with a flow weight (:func:`signsplat.fit.flow.flow_targets`).
+    ``flow``: the flow fields of stages with a flow weight (:func:`signsplat.fit.flow.flow_targets`;
+    the term's settings come from ``cfg['multiview']['flow']``).
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
@@ -152,17 +181,17 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         kernel=cfg["robust"]["kernel"], sigma_px=cfg["robust"]["sigma_px"], contiguous=contig,
         anchor={k: torch.as_tensor(v, dtype=dtype, device=device)
                 for k, v in (anchor or {}).items()},
-        pose_mean=obj.rest_pose_vector(cfg.get("rest_pose"), dtype=dtype, device=device),
+        pose_mean=obj.rest_pose_vector(cfg["rest_pose"], dtype=dtype, device=device),
         up=None if up is None else torch.as_tensor(up, dtype=dtype, device=device),
         level_cameras=bool(level_cameras and up is not None),
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
                                                                  device=device),
-        flow=flow, flow_clamp_px=float(flow_clamp_px), flow_max_vertices=int(flow_max_vertices))
+        flow=flow, flow_settings={} if flow is None else dict(cfg["multiview"]["flow"]))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
     """(T,63) initial body pose: the config's rest pose (prior mean) for every frame."""
-    return np.repeat(obj.rest_pose_vector(cfg.get("rest_pose"), torch.float64).numpy()[None],
+    return np.repeat(obj.rest_pose_vector(cfg["rest_pose"], torch.float64).numpy()[None],
                      T, axis=0)
 
 
@@ -219,8 +248,9 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         terms["silhouette_cover"] = float(stage.silhouette.get("cover", 0.0)) * cover
     if fl:
         terms["flow"] = stage.flow * flow_term(*projected, problem.flow, frames,
-                                               problem.flow_clamp_px, cache=flow_matches,
-                                               max_vertices=problem.flow_max_vertices)
+                                               problem.flow_settings["clamp_px"],
+                                               cache=flow_matches,
+                                               max_vertices=problem.flow_settings["max_vertices"])
     return terms
 
 
@@ -263,7 +293,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     if stage.iterations <= 0:
         return []
     if stage.optimizer == "lm":
-        from signsplat.fit.lm import run_lm
+        from signsplat.fit.levenberg_marquardt import run_lm
 
         return run_lm(problem, params, cams, stage, sel)
     groups = _param_groups(params, cams, stage)

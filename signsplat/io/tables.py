@@ -197,3 +197,16 @@ def read_table(path: str | os.PathLike, table: str) -> pd.DataFrame:
     meta = arrow.schema.metadata or {}
     df.attrs = json.loads(meta.get(b"signsplat.meta", b"{}"))
     return df
+
+
+def read_columns(path: str | os.PathLike, columns: list[str]) -> pd.DataFrame:
+    """The named columns of any Parquet table (for readers that accept several table kinds
+    sharing these columns); a missing file or column raises :class:`TableError` naming it."""
+    path = Path(path)
+    if not path.exists():
+        raise TableError(f"{path}: file not found (expected columns {columns})")
+    try:
+        return pq.read_table(path, columns=list(columns)).to_pandas()
+    except Exception as exc:  # pyarrow raises several types for corrupt files/missing columns
+        raise TableError(f"{path}: no readable Parquet table with columns {columns} "
+                         f"({exc})") from exc

@@ -23,7 +23,7 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
-from .conftest import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, shared_once,
+from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, shared_once,
                        slurm_args, snakemake, tiny_config)
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]

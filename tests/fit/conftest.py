@@ -1,5 +1,5 @@
-"""Shared assets of the fit tests: the proxy body (written once) and synthetic observations
-projected from known SMPL-X parameters and cameras (no simulator needed)."""
+"""Shared assets of the fit tests: the keypoint model of the proxy body (tests/conftest.py)
+and synthetic observations projected from known SMPL-X parameters and cameras."""
 
 from __future__ import annotations
 
@@ -12,20 +12,11 @@ from signsplat.fit.cameras import Rig, intrinsics_from_fov, project, rig_prior
 
 
 @pytest.fixture(scope="session")
-def body_path(tmp_path_factory):
-    from signsplat.body.proxy import write_proxy_model
-
-    path = tmp_path_factory.mktemp("fit_body") / "body.npz"
-    write_proxy_model(path, seed=0)
-    return path
-
-
-@pytest.fixture(scope="session")
-def kpm(body_path):
-    from signsplat.fit.cli import load_keypoint_model
+def kpm(proxy_body_path):
+    from signsplat.fit.bodyfit import load_keypoint_model
 
     torch.set_num_threads(1)  # shared CPUs: oversubscribed OpenMP threads are very slow
-    return load_keypoint_model(body_path, 10, 10, "cpu")
+    return load_keypoint_model(proxy_body_path, 10, 10, "cpu")
 
 
 def random_motion(T: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -57,6 +48,15 @@ def random_motion(T: int, seed: int = 0) -> dict[str, np.ndarray]:
     }
 
 
+def make_stage(**settings):
+    """A :class:`~signsplat.fit.solver.Stage` from settings, the schema filling the rest."""
+    from signsplat.fit.solver import Stage, stage_config
+
+    if "groups" in settings:
+        settings["groups"] = list(settings["groups"])
+    return Stage.from_config(stage_config(**settings))
+
+
 def synthetic_rig(views: int, arc: float = 150.0, size: int = 256) -> Rig:
     K = intrinsics_from_fov(size, size, 36.0)
     return rig_prior(np.tile(K, (views, 1, 1)), [size] * views, [size] * views, views, arc, 2.0,
@@ -67,7 +67,7 @@ def observe(kpm, params: dict[str, np.ndarray], rig: Rig, noise_px: float = 0.0,
             ) -> np.ndarray:
     """Project the keypoints of ``params`` into ``rig``: obs (V,T,133,3), score 1 inside the
     image (0 outside)."""
-    from signsplat.fit.cli import keypoints_of
+    from signsplat.fit.bodyfit import keypoints_of
 
     _, kp, _ = keypoints_of(kpm, params)
     uv, z = project(torch.as_tensor(kp), *(torch.as_tensor(a) for a in (rig.K, rig.R, rig.t)))

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from signsplat.fit import cameras as C
-from signsplat.fit import evaluate as E
-from signsplat.fit import filters as F
+from signsplat.fit import cameras
+from signsplat.fit import evaluate as fit_eval
+from signsplat.fit import filters
 from signsplat.fit import robust
 
 
@@ -27,7 +27,7 @@ def test_sanitize_counts_nan_and_zero_scores():
     kp[3, 0, :2] = np.nan
     kp[4, 1, 2] = 0.0
     kp[5, 2, 2] = np.nan
-    out, st = F.sanitize(kp, min_score=0.1)
+    out, st = filters.sanitize(kp, min_score=0.1)
     assert st.nan == 1 and st.low_score == 2
     assert np.isfinite(out).all()
     assert out[3, 0, 2] == 0 and out[4, 1, 2] == 0 and out[5, 2, 2] == 0
@@ -37,7 +37,7 @@ def test_sanitize_counts_nan_and_zero_scores():
 def test_outlier_rejection_finds_a_jump():
     _, _, kp = _track()
     kp[20, 1, :2] += 80.0
-    out, n = F.reject_outliers(kp, radius=3, threshold_px=25.0)
+    out, n = filters.reject_outliers(kp, radius=3, threshold_px=25.0)
     assert out[20, 1, 2] == 0.0
     assert n == 1
 
@@ -46,7 +46,7 @@ def test_one_euro_reduces_noise_and_skips_gaps():
     t, clean, kp = _track(noise=3.0)
     kp[10:14, 0, 2] = 0  # a gap: untouched and not advancing the filter
     kp[10:14, 0, :2] = 0
-    out = F.one_euro(kp, t, min_cutoff=3.0, beta=0.05)
+    out = filters.one_euro(kp, t, min_cutoff=3.0, beta=0.05)
     m = kp[..., 2] > 0
     err_in = np.abs(kp[..., :2] - clean)[m].mean()
     err_out = np.abs(out[..., :2] - clean)[m].mean()
@@ -81,8 +81,8 @@ def test_unknown_kernel_named():
 # --- cameras ---------------------------------------------------------------------------------
 
 def _ring(count=4, arc=150, dist=2.0):
-    K = C.intrinsics_from_fov(256, 256, 36.0)
-    rig = C.rig_prior(np.tile(K, (count, 1, 1)), [256] * count, [256] * count, count, arc, dist,
+    K = cameras.intrinsics_from_fov(256, 256, 36.0)
+    rig = cameras.rig_prior(np.tile(K, (count, 1, 1)), [256] * count, [256] * count, count, arc, dist,
                       np.array([0.0, 1.2, 0.0]))
     return rig
 
@@ -90,7 +90,7 @@ def _ring(count=4, arc=150, dist=2.0):
 def test_project_matches_opencv_convention():
     rig = _ring(1, 0)
     X = torch.tensor([[[0.0, 1.2, 0.0], [0.1, 1.3, 0.0]]], dtype=torch.float64)
-    uv, z = C.project(X, *(torch.as_tensor(a) for a in (rig.K, rig.R, rig.t)))
+    uv, z = cameras.project(X, *(torch.as_tensor(a) for a in (rig.K, rig.R, rig.t)))
     assert uv.shape == (1, 1, 2, 2)
     assert uv[0, 0, 0].numpy() == pytest.approx([127.5, 127.5], abs=1e-6)
     assert z[0, 0, 0].item() == pytest.approx(2.0)
@@ -104,26 +104,26 @@ def test_pnp_recovers_pose_from_noisy_points():
     rig = _ring(3)
     pts = rng.normal([0, 1.2, 0], [0.2, 0.3, 0.1], (30, 3))
     for v in range(3):
-        uv = C.project(torch.as_tensor(pts)[None], *(torch.as_tensor(a[v:v + 1]) for a in
+        uv = cameras.project(torch.as_tensor(pts)[None], *(torch.as_tensor(a[v:v + 1]) for a in
                                                       (rig.K, rig.R, rig.t)))[0][0, 0].numpy()
         uv += rng.normal(0, 0.5, uv.shape)
-        R, t, rms = C.pnp(pts, uv, rig.K[v])
-        assert E.rotation_angle_deg(R, rig.R[v]) < 1.0
+        R, t, rms = cameras.pnp(pts, uv, rig.K[v])
+        assert fit_eval.rotation_angle_deg(R, rig.R[v]) < 1.0
         assert np.linalg.norm(-R.T @ t - rig.centres()[v]) < 0.05
         assert rms < 2.0
 
 
 def test_pnp_refuses_too_few_or_nan_points():
     rig = _ring(1, 0)
-    assert C.pnp(np.zeros((3, 3)), np.zeros((3, 2)), rig.K[0]) is None
+    assert cameras.pnp(np.zeros((3, 3)), np.zeros((3, 2)), rig.K[0]) is None
     pts = np.random.default_rng(0).normal(size=(6, 3)) + [0, 0, 3]
     uv = np.full((6, 2), np.nan)
-    assert C.pnp(pts, uv, rig.K[0]) is None
+    assert cameras.pnp(pts, uv, rig.K[0]) is None
 
 
 def test_camera_params_gauge_view_stays_fixed():
     rig = _ring(3)
-    cams = C.CameraParams(rig, fixed=[0], dtype=torch.float64)
+    cams = cameras.CameraParams(rig, fixed=[0], dtype=torch.float64)
     with torch.no_grad():
         cams.rotvec += 0.1
         cams.dt += 0.2
@@ -141,13 +141,13 @@ def _random_similarity(seed):
     q /= np.linalg.norm(q)
     import roma
     R = roma.unitquat_to_rotmat(torch.as_tensor(q)).numpy()
-    return E.Similarity(1.3, R, rng.normal(size=3))
+    return fit_eval.Similarity(1.3, R, rng.normal(size=3))
 
 
 def test_umeyama_recovers_similarity():
     sim = _random_similarity(0)
     src = np.random.default_rng(2).normal(size=(20, 3))
-    est = E.umeyama(src, sim.apply(src))
+    est = fit_eval.umeyama(src, sim.apply(src))
     assert est.s == pytest.approx(1.3)
     assert np.allclose(est.R, sim.R, atol=1e-8)
     assert np.allclose(est.apply(src), sim.apply(src), atol=1e-8)
@@ -158,22 +158,22 @@ def test_camera_errors_zero_after_gauge_change_and_detect_a_rotation():
     sim = _random_similarity(3)
     inv_R = sim.R.T
     # express gt in another frame: x_fit = R^T (x_gt - t) / s
-    inv = E.Similarity(1 / sim.s, inv_R, -inv_R @ sim.t / sim.s)
-    fit = E.align_rig(gt, inv)
-    err = E.camera_errors(fit, gt)
+    inv = fit_eval.Similarity(1 / sim.s, inv_R, -inv_R @ sim.t / sim.s)
+    fit = fit_eval.align_rig(gt, inv)
+    err = fit_eval.camera_errors(fit, gt)
     assert err["rotation_deg_max"] < 1e-6 and err["centre_m_max"] < 1e-6
     # perturb one camera by 2 degrees
     import roma
     d = roma.rotvec_to_rotmat(torch.tensor([0.0, np.radians(2.0), 0.0], dtype=torch.float64)).numpy()
     fit.R[2] = d @ fit.R[2]
-    err = E.camera_errors(fit, gt)
+    err = fit_eval.camera_errors(fit, gt)
     assert 0.2 < err["rotation_deg_max"] < 2.5
 
 
 @pytest.mark.parametrize("views,spread", [(1, 0.0), (2, 150.0), (3, 0.001)])
 def test_gauge_alignment_degenerate_rigs_stay_finite(views, spread):
     gt = _ring(views, spread, dist=2.0)
-    err = E.camera_errors(gt, gt)
+    err = fit_eval.camera_errors(gt, gt)
     assert err["rotation_deg_max"] < 1e-5 and err["centre_m_max"] < 1e-5
 
 
@@ -181,26 +181,26 @@ def test_mpjpe_pa_and_jitter():
     rng = np.random.default_rng(0)
     gt = rng.normal(size=(10, 22, 3))
     sim = _random_similarity(1)
-    assert E.pa_mpjpe_mm(sim.apply(gt), gt) < 1e-6
+    assert fit_eval.pa_mpjpe_mm(sim.apply(gt), gt) < 1e-6
     shifted = gt + np.array([0.01, 0, 0])
-    assert E.mpjpe_mm(shifted, gt, root=None) == pytest.approx(10.0)
-    assert E.mpjpe_mm(shifted, gt, root=0) < 1e-9
-    assert E.acceleration_error_mm(shifted, gt) < 1e-9
+    assert fit_eval.mpjpe_mm(shifted, gt, root=None) == pytest.approx(10.0)
+    assert fit_eval.mpjpe_mm(shifted, gt, root=0) < 1e-9
+    assert fit_eval.acceleration_error_mm(shifted, gt) < 1e-9
     jitter = gt.copy()
     jitter[5] += 0.01
-    assert E.acceleration_error_mm(jitter, gt) > 1.0
+    assert fit_eval.acceleration_error_mm(jitter, gt) > 1.0
 
 
 def test_rig_up_direction_of_level_cameras():
     import roma
     rig = _ring(4, 120)
-    up = C.rig_up_direction(rig.R)
+    up = cameras.rig_up_direction(rig.R)
     assert np.allclose(up, [0, 1, 0], atol=1e-6)
     # the same rig in a tilted world frame: the vertical turns with it
     Rw = roma.rotvec_to_rotmat(torch.tensor([0.1, 0.2, -0.05], dtype=torch.float64)).numpy()
-    up2 = C.rig_up_direction(rig.R @ Rw.T)
+    up2 = cameras.rig_up_direction(rig.R @ Rw.T)
     assert np.allclose(up2, Rw @ np.array([0, 1, 0]), atol=1e-6)
-    assert C.rig_up_direction(rig.R[:1]) is None  # one camera: undefined
+    assert cameras.rig_up_direction(rig.R[:1]) is None  # one camera: undefined
 
 
 def test_image_errors_are_gauge_free_and_see_only_visible_vertices():
@@ -212,17 +212,17 @@ def test_image_errors_are_gauge_free_and_see_only_visible_vertices():
     verts = rng.uniform(-0.3, 0.3, (2, 40, 3)) + np.array([0.0, 1.2, 0.0])  # the rig looks here
     labels = np.repeat(np.arange(4), 10)
     sim = _random_similarity(5)
-    inv = E.Similarity(1 / sim.s, sim.R.T, -sim.R.T @ sim.t / sim.s)
-    fit_rig = E.align_rig(gt, inv)
+    inv = fit_eval.Similarity(1 / sim.s, sim.R.T, -sim.R.T @ sim.t / sim.s)
+    fit_rig = fit_eval.align_rig(gt, inv)
     fit_verts = inv.apply(verts)
-    rows = {p: v for _, p, v, _ in E.image_errors(fit_verts, fit_rig, verts, gt, labels)}
+    rows = {p: v for _, p, v, _ in fit_eval.image_errors(fit_verts, fit_rig, verts, gt, labels)}
     assert set(rows) == {"all", "body", "head", "left_hand", "right_hand"}
     assert max(rows.values()) < 1e-6
     moved = verts.copy()
     moved[:, labels == 2] += np.array([0.01, 0.0, 0.0])
-    rows = {p: v for _, p, v, _ in E.image_errors(moved, gt, verts, gt, labels)}
+    rows = {p: v for _, p, v, _ in fit_eval.image_errors(moved, gt, verts, gt, labels)}
     assert rows["left_hand"] > 0.5 and rows["body"] < 1e-9 and rows["right_hand"] < 1e-9
     far = verts.copy()
     far[:, labels == 3] += 100.0  # out of every image: not counted, so NaN for that part
-    rows = {p: v for _, p, v, _ in E.image_errors(verts, gt, far, gt, labels)}
+    rows = {p: v for _, p, v, _ in fit_eval.image_errors(verts, gt, far, gt, labels)}
     assert np.isnan(rows["right_hand"]) and rows["all"] < 1e-9

@@ -11,13 +11,14 @@ import pandas as pd
 import pytest
 import torch
 
-from conftest import observe, random_motion, synthetic_rig
+from conftest import make_stage, observe, random_motion, synthetic_rig
 from signsplat.cli import main
 from signsplat.config import validate
-from signsplat.fit import evaluate as E
-from signsplat.fit.cli import keypoints_of
+from signsplat.fit import evaluate as fit_eval
+from signsplat.fit.bodyfit import keypoints_of
 from signsplat.fit.multiview import fit_multiview
 from signsplat.fit.singleview import fit_singleview
+from signsplat.fit.solver import stage_config
 from signsplat.io.tables import read_table, write_table
 
 FAST_MV = {
@@ -51,7 +52,7 @@ def _upper_mpjpe(kpm, fit_params, gt_params, sim=None):
     gj, gk, _ = keypoints_of(kpm, gt_params)
     if sim is not None:
         fj, fk = sim.apply(fj), sim.apply(fk)
-    rows = {(m, p): v for m, p, v, _ in E.pose_errors(fj, fk, gj, gk)}
+    rows = {(m, p): v for m, p, v, _ in fit_eval.pose_errors(fj, fk, gj, gk)}
     return rows
 
 
@@ -76,9 +77,9 @@ def test_multiview_recovers_pose_and_cameras(kpm):
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, _cfg(FAST_MV))
     assert set(res.camera_status) <= {"pnp", "pnp_ransac", "prior"}
     assert all(np.isfinite(v).all() for v in res.params.values())
-    cam = E.camera_errors(res.rig, rig)
+    cam = fit_eval.camera_errors(res.rig, rig)
     assert cam["rotation_deg_max"] < 3.0 and cam["centre_m_max"] < 0.08
-    sim, _ = E.gauge_alignment(res.rig, rig)
+    sim, _ = fit_eval.gauge_alignment(res.rig, rig)
     err = _upper_mpjpe(kpm, res.params, gt, sim)
     init_err = _upper_mpjpe(kpm, {**gt, "body_pose": np.zeros_like(gt["body_pose"])}, gt)
     assert init_err[("mpjpe", "upper_body")] > 80.0
@@ -95,7 +96,7 @@ def test_multiview_recovers_pose_and_cameras(kpm):
 def test_multiview_hard_cases_stay_finite(kpm):
     """A view without detections, a frame without a person, NaN / zero scores and hands out
     of view: the fit runs, flags them, and no NaN reaches the outputs."""
-    from signsplat.fit.cli import clean_all
+    from signsplat.fit.filters import clean_observations as clean_all
 
     T, V = 5, 3
     gt = random_motion(T, seed=2)
@@ -133,7 +134,7 @@ def test_nearly_coincident_cameras(kpm):
     for st in cfg["multiview"]["stages"]:
         st["iterations"] = min(st["iterations"], 30)
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
-    cam = E.camera_errors(res.rig, rig)
+    cam = fit_eval.camera_errors(res.rig, rig)
     assert np.isfinite([cam["rotation_deg_max"], cam["centre_m_max"]]).all()
     assert all(np.isfinite(v).all() for v in res.params.values())
 
@@ -190,9 +191,9 @@ def _write_inputs(tmp_path, kpm, T=3, V=2):
     return tmp_path
 
 
-def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
+def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
     d = _write_inputs(tmp_path, kpm)
-    cfg = FAST_MV | {"overlay": {"frames_per_view": 1}}
+    cfg = FAST_MV | {"overlay": {"frames_per_view": 1}, "keypoints": "ground_truth"}
     for st in cfg["multiview"]["stages"]:
         st["iterations"] = 10
     out = d / "fit"
@@ -200,10 +201,9 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
     try:
         code = main(["fit", "--config-json", json.dumps(cfg), "--keypoints",
                      str(d / "kp.parquet"), "--calibration", str(d / "cameras.parquet"),
-                     "--frames", str(d / "frames.parquet"), "--body", str(body_path),
+                     "--frames", str(d / "frames.parquet"), "--body", str(proxy_body_path),
                      "--out-dir", str(out), "--gt-smplx", str(d / "gt.parquet"),
-                     "--gt-cameras", str(d / "cameras.parquet"),
-                     "--keypoints-source", "ground_truth"])
+                     "--gt-cameras", str(d / "cameras.parquet")])
         assert torch.are_deterministic_algorithms_enabled()  # reproducible gathers
     finally:
         torch.use_deterministic_algorithms(False)
@@ -223,11 +223,11 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
     assert len(list((out / "overlays").glob("*.png"))) == 2
 
 
-def test_cli_bad_input_names_the_file(tmp_path, body_path, capsys):
+def test_cli_bad_input_names_the_file(tmp_path, proxy_body_path, capsys):
     missing = tmp_path / "nokp.parquet"
     (tmp_path / "cams.parquet").write_text("not parquet")
     code = main(["fit", "--keypoints", str(missing), "--calibration",
-                 str(tmp_path / "cams.parquet"), "--body", str(body_path), "--out-dir",
+                 str(tmp_path / "cams.parquet"), "--body", str(proxy_body_path), "--out-dir",
                  str(tmp_path / "o")])
     assert code == 2
     assert "cams.parquet" in capsys.readouterr().err
@@ -245,13 +245,13 @@ def test_rig_prior_camera_init(kpm):
     rig0, status, _ = initial_rig(neutral_keypoints(kpm), obs, rig.K, rig.width, rig.height, cfg)
     assert status == ["prior", "no_detections", "prior"]
     # the prior is the scene's own arc layout around the body: close to the true rig
-    assert E.camera_errors(rig0, rig)["rotation_deg_max"] < 10.0
+    assert fit_eval.camera_errors(rig0, rig)["rotation_deg_max"] < 10.0
 
 
 def _corrupt(kpm, gt, rig, seed=5):
     """GT keypoints as a weak detector sees them: 1.5 px noise, 20 % dropouts, 8 % outliers
     anywhere in the image, a 4 px noisy face, and one side view with left/right swapped."""
-    from signsplat.body import joints as J
+    from signsplat.body import joints as body_joints
 
     obs = observe(kpm, gt, rig, noise_px=1.5, seed=seed)
     rng = np.random.default_rng(seed)
@@ -259,7 +259,7 @@ def _corrupt(kpm, gt, rig, seed=5):
     out = (rng.random(obs.shape[:3]) < 0.08) & (obs[..., 2] > 0)
     obs[..., 0][out] = rng.uniform(0, 256, out.sum())
     obs[..., 1][out] = rng.uniform(0, 256, out.sum())
-    face = list(J.KP_FACE)
+    face = list(body_joints.KP_FACE)
     obs[:, :, face, :2] += rng.normal(0, 4.0, obs[:, :, face, :2].shape)
     swap = np.arange(133)
     for a, b in ((1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12)):
@@ -273,7 +273,7 @@ def test_camera_init_auto_survives_noise_outliers_and_a_wrong_prior(kpm):
     prior (120 deg at 2.6 m for a 150 deg rig at 2 m) by multi-view consistency: it must do at
     least as well as the better uniform choice and stay within a few degrees, where the prior
     alone is 15 degrees off at the ends."""
-    from signsplat.fit.cli import clean_all
+    from signsplat.fit.filters import clean_observations as clean_all
     from signsplat.fit.multiview import initial_rig, neutral_keypoints
 
     T, V = 8, 5
@@ -286,7 +286,7 @@ def test_camera_init_auto_survives_noise_outliers_and_a_wrong_prior(kpm):
                                   "camera_prior": {"arc_degrees": 120, "distance": 2.6}}})
         rig0, status, _ = initial_rig(neutral_keypoints(kpm), obs, rig.K, rig.width,
                                       rig.height, cfg["multiview"])
-        errs[mode] = E.camera_errors(rig0, rig)
+        errs[mode] = fit_eval.camera_errors(rig0, rig)
     assert errs["rig_prior"]["rotation_deg_max"] > 14.0  # the prior really is wrong
     auto = errs["auto"]["rotation_deg_mean"]
     assert auto <= min(errs["pnp"]["rotation_deg_mean"],
@@ -301,7 +301,7 @@ def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm, anchor,
     degree and the upper body to a few centimetres (8 frames, a few seconds). The default
     camera anchor (which keeps biased detections from dragging the rig away) costs a little
     here, where the initial rig is ~5 degrees off and the keypoints are unbiased."""
-    from signsplat.fit.cli import clean_all
+    from signsplat.fit.filters import clean_observations as clean_all
 
     T, V = 8, 5
     gt = random_motion(T, seed=11)
@@ -310,15 +310,14 @@ def test_multiview_fit_with_corrupted_keypoints_reaches_the_cameras(kpm, anchor,
     cfg["multiview"]["camera_prior"] = {"arc_degrees": 120, "distance": 2.6}
     if anchor is not None:
         cfg["multiview"]["camera_anchor_weight"] = anchor
-    cfg["multiview"]["stages"].append({"name": "joint", "iterations": 12, "lr": 1.0,
-                                       "optimizer": "lm", "sigma_px": 10,
-                                       "groups": ["root", "body", "hands", "face", "betas",
-                                                  "cameras"]})
+    cfg["multiview"]["stages"].append(stage_config(
+        name="joint", iterations=12, lr=1.0, optimizer="lm", sigma_px=10,
+        groups=["root", "body", "hands", "face", "betas", "cameras"]))
     obs, _ = clean_all(_corrupt(kpm, gt, rig), np.arange(T) / 25.0, rig.height, cfg)
     res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
-    cam = E.camera_errors(res.rig, rig)
+    cam = fit_eval.camera_errors(res.rig, rig)
     assert cam["rotation_deg_mean"] < max_deg and cam["centre_m_mean"] < 0.03
-    sim, _ = E.gauge_alignment(res.rig, rig)
+    sim, _ = fit_eval.gauge_alignment(res.rig, rig)
     err = _upper_mpjpe(kpm, res.params, gt, sim)
     assert err[("mpjpe", "upper_body")] < 25.0
     assert all(np.isfinite(v).all() for v in res.params.values())
@@ -335,7 +334,7 @@ def test_lm_stage_reaches_the_exact_solution_from_a_tilted_pelvis(kpm):
     15 mm from this motion)."""
     from signsplat.fit.bodyfit import FitParams
     from signsplat.fit.cameras import CameraParams
-    from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
+    from signsplat.fit.solver import loss_terms, make_problem, run_stage
 
     T, V = 4, 4
     gt = random_motion(T, seed=7)
@@ -352,9 +351,9 @@ def test_lm_stage_reaches_the_exact_solution_from_a_tilted_pelvis(kpm):
         params = FitParams(T, 10, 10, init=init)
         cams = CameraParams(rig, fixed=[0])
         problem = make_problem(kpm, obs, cfg, np.arange(T))
-        st = {"name": "t", "iterations": iterations, "lr": 1.0 if optimizer == "lm" else 0.003,
-              "optimizer": optimizer, "groups": ["root", "body", "hands", "face"]}
-        stage = Stage.from_config(st)
+        stage = make_stage(name="t", iterations=iterations,
+                           lr=1.0 if optimizer == "lm" else 0.003, optimizer=optimizer,
+                           groups=["root", "body", "hands", "face"])
         run_stage(problem, params, cams, stage)
         with torch.no_grad():
             loss = float(sum(loss_terms(problem, params, cams, stage).values()))
@@ -370,8 +369,8 @@ def test_lm_objective_equals_the_stage_loss(kpm):
     including smoothness, upright, hand prior, shape prior and the camera anchor."""
     from signsplat.fit.bodyfit import FitParams
     from signsplat.fit.cameras import CameraParams
-    from signsplat.fit.lm import _FrameCost
-    from signsplat.fit.solver import Stage, loss_terms, make_problem
+    from signsplat.fit.levenberg_marquardt import SequenceResiduals
+    from signsplat.fit.solver import loss_terms, make_problem
 
     T, V = 5, 3
     gt = random_motion(T, seed=8)
@@ -390,23 +389,22 @@ def test_lm_objective_equals_the_stage_loss(kpm):
     problem = make_problem(kpm, obs, cfg, np.arange(T),
                            weights={"upright": 100.0, "camera_anchor": 50.0},
                            up=np.array([0.0, 1.0, 0.0]))
-    stage = Stage.from_config({"name": "j", "iterations": 1, "lr": 1.0, "optimizer": "lm",
-                               "sigma_px": 5.0, "parts": {"face": 0.5},
-                               "groups": ["root", "body", "hands", "face", "betas",
-                                          "cameras"]})
+    stage = make_stage(name="j", iterations=1, lr=1.0, optimizer="lm", sigma_px=5.0,
+                       parts={"face": 0.5},
+                       groups=["root", "body", "hands", "face", "betas", "cameras"])
     with torch.no_grad():
         want = float(sum(loss_terms(problem, params, cams, stage).values())) * T
-        fc = _FrameCost(problem, params, cams, stage,
+        resid = SequenceResiduals(problem, params, cams, stage,
                         ["global_orient", "transl", "body_pose", "jaw_pose", "expression",
                          "left_free", "right_free"], ["cameras", "betas"])
-        fc.set_global(fc.pack_global())
-        got = float(fc.total(fc.pack()))
+        resid.set_global(resid.pack_global())
+        got = float(resid.total(resid.pack()))
     assert got == pytest.approx(want, rel=2e-4)
 
 
 def test_confidence_power_reweights_kept_keypoints_only(kpm):
     """fit.confidence_power raises the cleaned scores to the power; ignored keypoints stay 0."""
-    from signsplat.fit.cli import clean_all
+    from signsplat.fit.filters import clean_observations as clean_all
 
     T = 4
     rig = synthetic_rig(2, arc=60)
@@ -471,14 +469,14 @@ def test_calibrated_cameras_stay_fixed_and_the_body_is_placed_from_them(kpm):
         fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
 
 
-def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, body_path, capsys):
+def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, proxy_body_path, capsys):
     d = _write_inputs(tmp_path, kpm)
     cfg = json.loads(json.dumps(FAST_MV))
     cfg["multiview"]["camera_init"] = "calibrated"
     for st in cfg["multiview"]["stages"]:
         st["iterations"] = 2
     base = ["fit", "--config-json", json.dumps(cfg), "--keypoints", str(d / "kp.parquet"),
-            "--frames", str(d / "frames.parquet"), "--body", str(body_path)]
+            "--frames", str(d / "frames.parquet"), "--body", str(proxy_body_path)]
     assert main(base + ["--out-dir", str(d / "nocal")]) == 2
     assert "--calibration" in capsys.readouterr().err
     cams = read_table(d / "cameras.parquet", "cameras")

@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import observe, random_motion, synthetic_rig
+from conftest import make_stage, observe, random_motion, synthetic_rig
 from scipy.interpolate import griddata
 
 from signsplat.config import validate
-from signsplat.fit import data as D
+from signsplat.fit import data as fit_data
 from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams, project
 from signsplat.fit.flow import (
@@ -24,7 +24,10 @@ from signsplat.fit.flow import (
     visible_vertices,
 )
 from signsplat.fit.silhouette import MatchCache
-from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
+from signsplat.fit.solver import loss_terms, make_problem, run_stage
+
+#: the flow term's clamp (px): the schema's fit.multiview.flow.clamp_px
+CLAMP = validate({}, "stages/fit.schema.yaml")["multiview"]["flow"]["clamp_px"]
 
 
 def _texture(h=64, w=80, seed=0):
@@ -126,18 +129,19 @@ def test_flow_term_is_lowest_at_the_true_motion_and_pulls_towards_it(kpm):
     W, H = int(rig.width[0]), int(rig.height[0])
     targets = _true_flow(verts, K, R, t, W, H, [(0, 1)])
     frames = torch.arange(2)
-    at_truth = flow_term(*project(verts, K, R, t), targets, frames)
+    at_truth = flow_term(*project(verts, K, R, t), targets, frames, CLAMP)
     shift = torch.zeros(2, 1, 3)
     shift.data[1, 0] = torch.tensor([0.02, -0.015, 0.0])
     shift.requires_grad_(True)
-    off = flow_term(*project(verts + shift, K, R, t), targets, frames)
+    off = flow_term(*project(verts + shift, K, R, t), targets, frames, CLAMP)
     assert float(at_truth) < 0.1 * K.shape[0]
     assert float(off.detach()) > 20 * float(at_truth) + 1.0
     off.backward()
     # a small step against the gradient brings frame 1 back: it points along the offset
     assert float(shift.grad[1, 0] @ shift.detach()[1, 0]) > 0
     # a batch holding only one frame of the pair has nothing to follow
-    assert float(flow_term(*project(verts[:1], K, R, t), targets, torch.tensor([0]))) == 0.0
+    one = flow_term(*project(verts[:1], K, R, t), targets, torch.tensor([0]), CLAMP)
+    assert float(one) == 0.0
 
 
 def test_flow_matches_are_kept_until_due_and_stay_finite_in_hard_cases(kpm):
@@ -153,20 +157,21 @@ def test_flow_matches_are_kept_until_due_and_stay_finite_in_hard_cases(kpm):
     assert int(per_pair.max()) <= 100 and int(per_pair.min()) >= 50
     assert set(few.vertex.tolist()) <= set(fresh.vertex.tolist())
     cache = MatchCache(every=3)
-    flow_term(uv, z, targets, frames, cache=cache)
+    flow_term(uv, z, targets, frames, CLAMP, cache=cache)
     first = cache.matches
-    flow_term(uv + 1.0, z, targets, frames, cache=cache)
+    flow_term(uv + 1.0, z, targets, frames, CLAMP, cache=cache)
     assert cache.matches is first  # kept: not due
-    flow_term(uv, z, targets, frames, cache=cache)
-    flow_term(uv, z, targets, frames, cache=cache)
+    flow_term(uv, z, targets, frames, CLAMP, cache=cache)
+    flow_term(uv, z, targets, frames, CLAMP, cache=cache)
     assert cache.matches is not first  # re-chosen on the 4th call
     # empty frames (all flow untrusted), points behind the camera, NaN projections
     empty = FlowTargets(torch.full_like(targets.flow, float("nan")), targets.view, targets.a,
                         targets.b, W, H)
-    assert float(flow_term(uv, z, empty, frames)) == 0.0
+    assert float(flow_term(uv, z, empty, frames, CLAMP)) == 0.0
     bad_uv = uv.clone()
     bad_uv[:, 1, :100] = float("nan")
-    val = flow_term(bad_uv, torch.where(torch.rand_like(z) < 0.1, -z, z), targets, frames)
+    val = flow_term(bad_uv, torch.where(torch.rand_like(z) < 0.1, -z, z), targets, frames,
+                    CLAMP)
     assert torch.isfinite(val)
 
 
@@ -176,14 +181,15 @@ def test_flow_targets_from_images_of_a_moving_texture():
     masks = np.zeros(imgs.shape, bool)
     masks[..., 8:56, 8:56] = True
     masks[0, 2] = False  # an empty frame: its pairs are left out
-    tg = flow_targets(imgs, masks, np.array([0, 1, 2]), gaps=(1, 2))
+    tg = flow_targets(imgs, masks, np.array([0, 1, 2]), gaps=(1, 2), consistency_px=0.5,
+                      preset="medium")
     assert tg.num_pairs == 1 and (int(tg.a[0]), int(tg.b[0])) == (0, 1)
     f = tg.flow[0, :, 20:40, 20:40]
     assert float(torch.nanmedian((f[0] - 1.0).abs())) < 0.1
     with pytest.raises(ValueError, match="preset"):
-        flow_targets(imgs, masks, np.arange(3), preset="slow")
+        flow_targets(imgs, masks, np.arange(3), (1,), 0.5, preset="slow")
     with pytest.raises(ValueError, match="views, frames"):
-        flow_targets(imgs[0], masks[0], np.arange(3))
+        flow_targets(imgs[0], masks[0], np.arange(3), (1,), 0.5, "medium")
 
 
 def test_flow_stage_fixes_the_motion_between_frames_without_keypoints(kpm):
@@ -200,9 +206,12 @@ def test_flow_stage_fixes_the_motion_between_frames_without_keypoints(kpm):
     cfg = validate({}, "stages/fit.schema.yaml")
     problem = make_problem(kpm, observe(kpm, gt, rig), cfg, np.arange(2), flow=targets)
     off = {"body": 0, "feet": 0, "face": 0, "left_hand": 0, "right_hand": 0}
-    stage = Stage(name="flow", iterations=60, lr=0.002, groups=("root",), parts=off,
-                  smooth=False, flow=10.0, rematch_every=5)
-    rel = lambda p: np.linalg.norm(np.diff(p, axis=0) - np.diff(gt["transl"], axis=0))
+    stage = make_stage(name="flow", iterations=60, lr=0.002, groups=("root",), parts=off,
+                       smooth=False, flow=10.0, rematch_every=5)
+
+    def rel(p):
+        return np.linalg.norm(np.diff(p, axis=0) - np.diff(gt["transl"], axis=0))
+
     before = rel(init["transl"])
     run_stage(problem, params, cams, stage)
     assert rel(params.transl.detach().numpy()) < 0.3 * before
@@ -212,14 +221,13 @@ def test_flow_stage_fixes_the_motion_between_frames_without_keypoints(kpm):
 
 def test_flow_stage_rules(kpm):
     with pytest.raises(ValueError, match="not lm"):
-        Stage(name="j", iterations=1, lr=1.0, groups=("root",), optimizer="lm", flow=1.0)
-    assert not Stage(name="z", iterations=1, lr=0.1, groups=("root",)).uses_flow
-    assert Stage.from_config({"name": "f", "iterations": 1, "lr": 0.1, "groups": ["root"],
-                              "flow": 5}).flow == 5.0
+        make_stage(name="j", iterations=1, lr=1.0, groups=("root",), optimizer="lm", flow=1.0)
+    assert not make_stage(name="z", iterations=1, lr=0.1, groups=("root",)).uses_flow
+    assert make_stage(name="f", iterations=1, lr=0.1, groups=["root"], flow=5).flow == 5.0
     gt = random_motion(2, seed=6)
     rig = synthetic_rig(2)
     problem = make_problem(kpm, observe(kpm, gt, rig), validate({}, "stages/fit.schema.yaml"))
-    stage = Stage(name="needs_images", iterations=1, lr=0.1, groups=("root",), flow=1.0)
+    stage = make_stage(name="needs_images", iterations=1, lr=0.1, groups=("root",), flow=1.0)
     with pytest.raises(ValueError, match="needs_images.*no images"):
         loss_terms(problem, FitParams(2, 10, 10), CameraParams(rig), stage)
 
@@ -235,15 +243,15 @@ def test_read_grey_images(tmp_path):
     import pandas as pd
 
     df = pd.DataFrame({"view": [0, 1], "frame": [3, 9], "image_path": [str(tmp_path / "a.png")] * 2})
-    out = D.read_grey_images(df, np.array([3, 4]), [24, 24], [16, 16], "frames.parquet")
+    out = fit_data.read_grey_images(df, np.array([3, 4]), [24, 24], [16, 16], "frames.parquet")
     assert out.shape == (2, 2, 16, 24) and out.dtype == np.uint8
     assert abs(int(out[0, 0, 0, 0]) - round(0.587 * 200)) <= 1 and out[1].max() == 0
     bad = df.assign(image_path=[str(tmp_path / "small.png")] * 2)
     with pytest.raises(InputError, match="small.png"):
-        D.read_grey_images(bad, np.array([3]), [24, 24], [16, 16], "frames.parquet")
+        fit_data.read_grey_images(bad, np.array([3]), [24, 24], [16, 16], "frames.parquet")
 
 
-def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys):
+def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, proxy_body_path, capsys):
     """A flow stage needs --frames (error names the stage and the flag); the fit then runs."""
     from test_fit import FAST_MV, _write_inputs
 
@@ -265,7 +273,7 @@ def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys
     cfg["multiview"]["stages"].append({"name": "fl", "iterations": 2, "lr": 0.001,
                                        "groups": ["root"], "flow": 10})
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
-            str(d / "cameras.parquet"), "--body", str(body_path), "--masks", str(masks),
+            str(d / "cameras.parquet"), "--body", str(proxy_body_path), "--masks", str(masks),
             "--config-json", json.dumps(cfg)]
     assert main(args + ["--out-dir", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err
@@ -275,7 +283,7 @@ def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys
     assert (tmp_path / "b" / "smplx_fit.parquet").is_file()
 
 
-def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, body_path, capsys):
+def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, proxy_body_path, capsys):
     from test_fit import _write_inputs
 
     from signsplat.cli import main
@@ -285,7 +293,7 @@ def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, body_path, 
                                              "groups": ["root"], "flow": 1}]}}
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
             str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
-            str(body_path), "--view", "0", "--config-json", json.dumps(cfg),
+            str(proxy_body_path), "--view", "0", "--config-json", json.dumps(cfg),
             "--out-dir", str(tmp_path / "o")]
     assert main(args) == 2
     err = capsys.readouterr().err

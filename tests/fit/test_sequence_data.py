@@ -7,8 +7,8 @@ import torch
 
 from signsplat.body import hand_limits as hl
 from signsplat.errors import InputError
-from signsplat.fit import data as D
-from signsplat.fit import sequence as S
+from signsplat.fit import data as fit_data
+from signsplat.fit import sequence
 from signsplat.fit.bodyfit import FitParams
 from signsplat.io.tables import write_table
 
@@ -22,7 +22,7 @@ def _params(T):
 def test_fill_gaps_interpolates_inside_and_holds_at_the_ends():
     p = _params(8)
     fitted = np.array([False, True, True, False, False, True, True, False])
-    out, prov = S.fill_gaps(p, fitted)
+    out, prov = sequence.fill_gaps(p, fitted)
     assert prov.tolist() == ["missing", "fitted", "fitted", "interpolated", "interpolated",
                              "fitted", "fitted", "missing"]
     assert np.allclose(out["transl"][3], p["transl"][2] + (p["transl"][5] - p["transl"][2]) / 3)
@@ -32,11 +32,11 @@ def test_fill_gaps_interpolates_inside_and_holds_at_the_ends():
     # fitted frames untouched; slerp of a rotation stays between its ends
     assert np.allclose(out["global_orient"][1], p["global_orient"][1])
     with pytest.raises(ValueError):
-        S.fill_gaps(p, np.zeros(8, bool))
+        sequence.fill_gaps(p, np.zeros(8, bool))
 
 
 def test_contiguous_triplets_break_at_frame_gaps():
-    assert S.contiguous_triplets(np.array([0, 1, 2, 4, 5, 6])).tolist() == [True, False, False,
+    assert sequence.contiguous_triplets(np.array([0, 1, 2, 4, 5, 6])).tolist() == [True, False, False,
                                                                             True]
 
 
@@ -50,12 +50,12 @@ def test_read_keypoints_layout_and_missing_rows(tmp_path):
     path = tmp_path / "kp.parquet"
     write_table(_kp_df([("s", 0, 3, 5, 10.0, 20.0, 0.9), ("s", 1, 5, 132, 1.0, 2.0, np.nan)]),
                 path, "keypoints")
-    obs, frames = D.read_keypoints(path, 2)
+    obs, frames = fit_data.read_keypoints(path, 2)
     assert obs.shape == (2, 3, 133, 3) and frames.tolist() == [3, 4, 5]
     assert obs[0, 0, 5].tolist() == pytest.approx([10, 20, 0.9])
     assert (obs[:, 1, :, 2] == 0).all()  # frame 4 has no person: all unknown
     with pytest.raises(InputError, match="kp.parquet"):
-        D.read_keypoints(path, 1)  # view 1 beyond a 1-camera rig
+        fit_data.read_keypoints(path, 1)  # view 1 beyond a 1-camera rig
 
 
 @pytest.mark.parametrize("bad", ["kp_range", "duplicate", "missing_column", "not_parquet"])
@@ -71,12 +71,12 @@ def test_bad_keypoint_files_name_the_file(tmp_path, bad):
     else:
         path.write_text("garbage")
     with pytest.raises(InputError, match=f"{bad}.parquet"):
-        D.read_keypoints(path, 1)
+        fit_data.read_keypoints(path, 1)
 
 
 def test_missing_file_named(tmp_path):
     with pytest.raises(InputError, match="nope.parquet"):
-        D.read_rig(tmp_path / "nope.parquet")
+        fit_data.read_rig(tmp_path / "nope.parquet")
 
 
 def test_smplx_table_refuses_nan():
@@ -84,11 +84,11 @@ def test_smplx_table_refuses_nan():
                                           ("body_pose", 63), ("jaw_pose", 3), ("leye_pose", 3),
                                           ("reye_pose", 3), ("left_hand_pose", 45),
                                           ("right_hand_pose", 45), ("transl", 3)]}
-    df = D.smplx_table(p, "s", np.arange(2), np.array(["fitted"] * 2), np.array([5, 6]))
+    df = fit_data.smplx_table(p, "s", np.arange(2), np.array(["fitted"] * 2), np.array([5, 6]))
     assert df["num_keypoints"].tolist() == [5, 6]
     p["transl"][1, 0] = np.nan
     with pytest.raises(ValueError, match="transl"):
-        D.smplx_table(p, "s", np.arange(2), np.array(["fitted"] * 2), np.array([5, 6]))
+        fit_data.smplx_table(p, "s", np.arange(2), np.array(["fitted"] * 2), np.array([5, 6]))
 
 
 @pytest.mark.parametrize("angle", [np.pi / 2, -np.pi / 2])

@@ -7,11 +7,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from conftest import observe, random_motion, synthetic_rig
+from conftest import make_stage, observe, random_motion, synthetic_rig
 
 from signsplat.config import validate
 from signsplat.errors import InputError
-from signsplat.fit import data as D
+from signsplat.fit import data as fit_data
 from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams
 from signsplat.fit.silhouette import (
@@ -20,7 +20,7 @@ from signsplat.fit.silhouette import (
     silhouette_terms,
     targets_from_masks,
 )
-from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage
+from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage, stage_config
 
 
 def _vertices(kpm, params):
@@ -166,8 +166,8 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
     cfg = validate({}, "stages/fit.schema.yaml")
     problem = make_problem(kpm, obs, cfg, np.arange(T), masks=masks)
     off = {"body": 0, "feet": 0, "face": 0, "left_hand": 0, "right_hand": 0}
-    stage = Stage(name="sil", groups=("root",), parts=off,
-                  silhouette={"inside": 100.0, "cover": 100.0}, **solver)
+    stage = make_stage(name="sil", groups=("root",), parts=off,
+                       silhouette={"inside": 100.0, "cover": 100.0}, **solver)
     before = np.linalg.norm(init["transl"] - gt["transl"], axis=1).mean()
     run_stage(problem, params, cams, stage)
     after = np.linalg.norm(params.transl.detach().numpy() - gt["transl"], axis=1).mean()
@@ -179,20 +179,20 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
 
 def test_stage_rules_and_missing_masks(kpm):
     with pytest.raises(ValueError, match="not lm"):
-        Stage(name="j", iterations=1, lr=1.0, groups=("root",), optimizer="lm",
-              silhouette={"cover": 1.0})
-    with pytest.raises(ValueError, match="unknown silhouette term"):
-        Stage.from_config({"name": "s", "iterations": 1, "lr": 0.1, "groups": ["root"],
+        make_stage(name="j", iterations=1, lr=1.0, groups=("root",), optimizer="lm",
+                   silhouette={"cover": 1.0})
+    with pytest.raises(ValueError, match="unknown silhouette term"):  # past the schema
+        Stage.from_config({**stage_config(name="s", iterations=1, lr=0.1, groups=["root"]),
                            "silhouette": {"outline": 1.0}})
-    assert not Stage(name="z", iterations=1, lr=0.1, groups=("root",),
-                     silhouette={"inside": 0.0}).uses_silhouette
+    assert not make_stage(name="z", iterations=1, lr=0.1, groups=("root",),
+                          silhouette={"inside": 0.0}).uses_silhouette
     T, V = 2, 2
     gt = random_motion(T, seed=6)
     rig = synthetic_rig(V)
     problem = make_problem(kpm, observe(kpm, gt, rig), validate({}, "stages/fit.schema.yaml"))
     params = FitParams(T, 10, 10)
-    stage = Stage(name="needs_masks", iterations=1, lr=0.1, groups=("root",),
-                  silhouette={"inside": 1.0})
+    stage = make_stage(name="needs_masks", iterations=1, lr=0.1, groups=("root",),
+                       silhouette={"inside": 1.0})
     with pytest.raises(ValueError, match="needs_masks.*no person masks"):
         loss_terms(problem, params, CameraParams(rig), stage)
 
@@ -205,23 +205,23 @@ def test_read_masks(tmp_path):
     cv2.imwrite(str(tmp_path / "m/small.png"), m[:8])
     pd.DataFrame({"view": [0, 1, 1], "frame": [3, 4, 9], "mask": ["m/a.png", "m/a.png", ""]}
                  ).to_parquet(tmp_path / "masks.parquet")
-    out = D.read_masks(tmp_path / "masks.parquet", np.array([3, 4, 5]), [24, 24], [16, 16])
+    out = fit_data.read_masks(tmp_path / "masks.parquet", np.array([3, 4, 5]), [24, 24], [16, 16])
     assert out.shape == (2, 3, 16, 24)
     assert out[0, 0].sum() == 16 and out[1, 1].sum() == 16
     assert out[0, 1:].sum() == 0 and out[1, 0].sum() == 0 and out[:, 2].sum() == 0
     pd.DataFrame({"view": [0], "frame": [3], "mask": ["m/small.png"]}).to_parquet(
         tmp_path / "bad.parquet")
     with pytest.raises(InputError, match="small.png"):
-        D.read_masks(tmp_path / "bad.parquet", np.array([3]), [24], [16])
+        fit_data.read_masks(tmp_path / "bad.parquet", np.array([3]), [24], [16])
     pd.DataFrame({"view": [2], "frame": [3], "mask": ["m/a.png"]}).to_parquet(
         tmp_path / "view.parquet")
     with pytest.raises(InputError, match="view 2"):
-        D.read_masks(tmp_path / "view.parquet", np.array([3]), [24, 24], [16, 16])
+        fit_data.read_masks(tmp_path / "view.parquet", np.array([3]), [24, 24], [16, 16])
     with pytest.raises(InputError, match="nothere.parquet"):
-        D.read_masks(tmp_path / "nothere.parquet", np.array([3]), [24], [16])
+        fit_data.read_masks(tmp_path / "nothere.parquet", np.array([3]), [24], [16])
 
 
-def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, capsys):
+def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, proxy_body_path, capsys):
     """Without silhouette weights the masks file is never opened (a missing one is fine); with
     them, a missing file is an error naming it."""
     from test_fit import FAST_MV, _write_inputs
@@ -234,7 +234,7 @@ def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, c
         st["iterations"] = 5
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
             str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
-            str(body_path), "--masks", str(tmp_path / "missing_masks.parquet")]
+            str(proxy_body_path), "--masks", str(tmp_path / "missing_masks.parquet")]
     assert main(args + ["--config-json", json.dumps(cfg), "--out-dir", str(tmp_path / "a")]) == 0
     cfg["multiview"]["stages"].append({"name": "sil", "iterations": 2, "lr": 0.001,
                                        "groups": ["root"], "silhouette": {"cover": 10}})

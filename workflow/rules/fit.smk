@@ -1,15 +1,15 @@
 # Stage 4: SMPL-X fitting (paper 3.1). Mode multiview when the sequence has more than one
-# camera, else singleview (the CLI decides from the number of cameras; config fit.mode forces).
-# Keypoints: config fit.keypoints = detected (perception stage, default) or ground_truth
-# (the simulator's keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette
-# stage) come from the same source. The frames table's images feed the overlays and the
-# silhouette stage's optical-flow term.
+# camera, else singleview (signsplat.fit.mode; config fit.mode forces). Keypoints: config
+# fit.keypoints = detected (perception stage) or ground_truth (the simulator's
+# keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette stage) come from the
+# same source. The frames table's images feed the overlays and the optical-flow term.
+from signsplat.fit.mode import mode_config
 
-FIT_CFG = config.get("fit", {})
+FIT_CFG = config["fit"]  # validated in common.smk: the schema filled the defaults
 
 
 def fit_keypoints(wildcards):
-    if FIT_CFG.get("keypoints", "detected") == "ground_truth" and wildcards.scene in SCENES:
+    if FIT_CFG["keypoints"] == "ground_truth" and wildcards.scene in SCENES:
         return f"{RESULTS}/{wildcards.scene}/sim/keypoints_gt.parquet"
     return f"{RESULTS}/{wildcards.scene}/perception/keypoints.parquet"
 
@@ -17,7 +17,7 @@ def fit_keypoints(wildcards):
 def fit_masks(wildcards):
     # the silhouette stage's person masks: the perception stage's, or with ground-truth
     # keypoints the simulator's (the frames table carries them)
-    if FIT_CFG.get("keypoints", "detected") == "ground_truth" and wildcards.scene in SCENES:
+    if FIT_CFG["keypoints"] == "ground_truth" and wildcards.scene in SCENES:
         return frames_table(wildcards)
     return f"{RESULTS}/{wildcards.scene}/perception/masks.parquet"
 
@@ -40,11 +40,7 @@ def fit_inputs(wildcards):
 def fit_config(wildcards):
     """The fit section without the other mode's settings: a change to the multi-view stages
     does not re-run the single-view fits, nor the other way round."""
-    mode = FIT_CFG.get("mode", "auto")
-    if mode == "auto":
-        mode = "multiview" if num_views(wildcards.scene) > 1 else "singleview"
-    other = {"multiview": "singleview", "singleview": "multiview"}[mode]
-    return as_json({k: v for k, v in FIT_CFG.items() if k != other})
+    return as_json(mode_config(FIT_CFG, PLAN.num_views(wildcards.scene)))
 
 
 def fit_extra_args(wildcards, input):
@@ -72,7 +68,6 @@ rule fit_smplx:
     params:
         cfg=fit_config,
         extra=fit_extra_args,
-        source=FIT_CFG.get("keypoints", "detected"),
         betas=config["body_model"]["num_betas"],
         expr=config["body_model"]["num_expression"],
         device=config.get("device", "auto"),
@@ -88,9 +83,7 @@ rule fit_smplx:
         "{PY} -m signsplat fit --config-json {params.cfg:q} --scene {wildcards.scene}"
         " --keypoints {input.keypoints:q} --frames {input.frames:q} --body {input.body:q}"
         " --masks {input.masks:q}"
-        " --keypoints-source {params.source} --num-betas {params.betas}"
+        " --num-betas {params.betas}"
         " --num-expression {params.expr} --device {params.device} --threads {threads}"
         " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.fit_smplx.output.eval, scene=list(SEQUENCES)))

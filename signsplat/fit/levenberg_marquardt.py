@@ -53,8 +53,11 @@ def _kpm64(problem):
     return m
 
 
-class _FrameCost:
-    """Residual vectors of a batch of frames for fixed cameras, betas and neighbours."""
+class SequenceResiduals:
+    """The LM stage's objective written as residuals of the whole sequence: per-frame residual
+    vectors (:meth:`outputs`, for given global unknowns), the global unknowns themselves (the
+    free cameras' increments and the betas: :meth:`pack_global` / :meth:`set_global`), and
+    the exact objective (:meth:`total`)."""
 
     def __init__(self, problem, params, cams, stage, blocks, global_groups=()):
         dt = torch.float64
@@ -249,7 +252,7 @@ def _irls_weights(kernel: str, r2: torch.Tensor, sigma: float) -> torch.Tensor:
     return torch.ones_like(r2)
 
 
-def _jacobian(fc: _FrameCost, x: torch.Tensor, frames: torch.Tensor, irls: torch.Tensor,
+def _jacobian(resid: SequenceResiduals, x: torch.Tensor, frames: torch.Tensor, irls: torch.Tensor,
               f0: torch.Tensor, step: float = 1e-6, chunk: int = 32) -> torch.Tensor:
     """Forward-difference Jacobian (B,M,P) of the per-frame features."""
     B, P = x.shape
@@ -259,31 +262,31 @@ def _jacobian(fc: _FrameCost, x: torch.Tensor, frames: torch.Tensor, irls: torch
         n = len(cols)
         xp = x.unsqueeze(0).repeat(n, 1, 1)
         xp[torch.arange(n), :, cols] += step
-        f, _, _ = fc.outputs(xp.reshape(n * B, P), frames.repeat(n), irls.repeat(1, n, 1))
+        f, _, _ = resid.outputs(xp.reshape(n * B, P), frames.repeat(n), irls.repeat(1, n, 1))
         J[:, :, s:s + n] = ((f.reshape(n, B, -1) - f0) / step).permute(1, 2, 0)
     return J
 
 
-def _global_jacobian(fc: _FrameCost, x: torch.Tensor, frames: torch.Tensor,
+def _global_jacobian(resid: SequenceResiduals, x: torch.Tensor, frames: torch.Tensor,
                      irls: torch.Tensor, f0: torch.Tensor, step: float = 1e-6) -> torch.Tensor:
     """Forward-difference Jacobian (B,M,Y) of the per-frame features in the global unknowns.
 
     The camera columns reuse the body's keypoints (only the projection changes)."""
-    y0 = fc.pack_global()
+    y0 = resid.pack_global()
     J = torch.empty(len(frames), f0.shape[1], len(y0), dtype=x.dtype)
-    n_cam = 6 * len(fc.free_views)
-    kp0 = fc.keypoints(fc.unpack(x, frames)) if n_cam else None
+    n_cam = 6 * len(resid.free_views)
+    kp0 = resid.keypoints(resid.unpack(x, frames)) if n_cam else None
     for k in range(len(y0)):
         y = y0.clone()
         y[k] += step
-        fc.set_global(y)
-        f, _, _ = fc.outputs(x, frames, irls, kp0 if k < n_cam else None)
+        resid.set_global(y)
+        f, _, _ = resid.outputs(x, frames, irls, kp0 if k < n_cam else None)
         J[:, :, k] = (f - f0) / step
-    fc.set_global(y0)
+    resid.set_global(y0)
     return J
 
 
-def _normal_equations(fc: _FrameCost, x: torch.Tensor, chunk: int):
+def _normal_equations(resid: SequenceResiduals, x: torch.Tensor, chunk: int):
     """Gauss-Newton normal equations of the whole sequence.
 
     Returns (per-frame block in lower banded storage ``(3P, T*P)`` - frames couple to +-2
@@ -291,11 +294,11 @@ def _normal_equations(fc: _FrameCost, x: torch.Tensor, chunk: int):
     to the global unknowns, their block ``D (Y,Y)`` and gradient ``(Y,)``), numpy float64.
     """
     T, P = x.shape
-    Y = len(fc.pack_global())
+    Y = len(resid.pack_global())
     frames = torch.arange(T)
-    kp = fc.keypoints(fc.unpack(x, frames))
-    uv, _ = project(kp, fc.K, fc.R, fc.t)
-    irls_all = _irls_weights(fc.kernel, ((uv - fc.obs[..., :2]) ** 2).sum(-1), fc.sigma)
+    kp = resid.keypoints(resid.unpack(x, frames))
+    uv, _ = project(kp, resid.K, resid.R, resid.t)
+    irls_all = _irls_weights(resid.kernel, ((uv - resid.obs[..., :2]) ** 2).sum(-1), resid.sigma)
     Hd = torch.zeros(T, P, P, dtype=x.dtype)
     g = torch.zeros(T, P, dtype=x.dtype)
     C = torch.zeros(T, P, Y, dtype=x.dtype)
@@ -305,33 +308,33 @@ def _normal_equations(fc: _FrameCost, x: torch.Tensor, chunk: int):
     head = 0
     for s in range(0, T, chunk):
         fr = frames[s:s + chunk]
-        f0, _, head = fc.outputs(x[fr], fr, irls_all[:, fr])
-        J = _jacobian(fc, x[fr], fr, irls_all[:, fr], f0)
+        f0, _, head = resid.outputs(x[fr], fr, irls_all[:, fr])
+        J = _jacobian(resid, x[fr], fr, irls_all[:, fr], f0)
         Jh, rh = J[:, :head], f0[:, :head]
         Hd[fr] = Jh.transpose(1, 2) @ Jh
         g[fr] = (Jh.transpose(1, 2) @ rh[..., None])[..., 0]
         feats.append(f0[:, head:])
         G.append(J[:, head:])
         if Y:
-            Jy = _global_jacobian(fc, x[fr], fr, irls_all[:, fr], f0)
+            Jy = _global_jacobian(resid, x[fr], fr, irls_all[:, fr], f0)
             C[fr] = Jh.transpose(1, 2) @ Jy[:, :head]
             D += (Jy[:, :head].transpose(1, 2) @ Jy[:, :head]).sum(0)
             gy += (Jy[:, :head].transpose(1, 2) @ rh[..., None])[..., 0].sum(0)
             Gy.append(Jy[:, head:])
-    if fc.free_views and fc.w.camera_anchor > 0:  # cameras' pull towards their init
-        nc = 6 * len(fc.free_views)
-        D[:nc, :nc] += fc.T * fc.w.camera_anchor * torch.eye(nc, dtype=x.dtype)
-        gy[:nc] += np.sqrt(fc.T * fc.w.camera_anchor) * fc.camera_residual()
-    if fc.use_betas:  # shape prior
-        nb = fc.betas.numel()
-        D[Y - nb:, Y - nb:] += fc.T * fc.w.shape * torch.eye(nb, dtype=x.dtype)
-        gy[Y - nb:] += fc.T * fc.w.shape * fc.betas.reshape(-1)
+    if resid.free_views and resid.w.camera_anchor > 0:  # cameras' pull towards their init
+        nc = 6 * len(resid.free_views)
+        D[:nc, :nc] += resid.T * resid.w.camera_anchor * torch.eye(nc, dtype=x.dtype)
+        gy[:nc] += np.sqrt(resid.T * resid.w.camera_anchor) * resid.camera_residual()
+    if resid.use_betas:  # shape prior
+        nb = resid.betas.numel()
+        D[Y - nb:, Y - nb:] += resid.T * resid.w.shape * torch.eye(nb, dtype=x.dtype)
+        gy[Y - nb:] += resid.T * resid.w.shape * resid.betas.reshape(-1)
     H1 = torch.zeros(max(T - 1, 0), P, P, dtype=x.dtype)  # block (t+1, t)
     H2 = torch.zeros(max(T - 2, 0), P, P, dtype=x.dtype)  # block (t+2, t)
-    if fc.smooth and T >= 3:
+    if resid.smooth and T >= 3:
         f = torch.cat(feats)
         G = torch.cat(G)  # (T,F,P)
-        m = fc.contig.to(x.dtype)  # (T-2,) triplet centred at c = index + 1
+        m = resid.contig.to(x.dtype)  # (T-2,) triplet centred at c = index + 1
         acc = (f[2:] - 2 * f[1:-1] + f[:-2]) * m[:, None]
         coef = (1.0, -2.0, 1.0)
         GtG = G.transpose(1, 2) @ G  # (T,P,P)
@@ -401,19 +404,19 @@ def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 
         raise ValueError(f"stage {stage.name!r}: optimizer lm runs on the whole sequence "
                          "(warm_start must be false)")
     blocks = [n for g in PER_FRAME_GROUPS if g in stage.groups for n in GROUP_BLOCKS[g]]
-    fc = _FrameCost(problem, params, cams, stage, blocks,
+    resid = SequenceResiduals(problem, params, cams, stage, blocks,
                     [g for g in ("cameras", "betas") if g in stage.groups])
-    T = fc.T
-    x = fc.pack()
-    y = fc.pack_global()
-    fc.set_global(y)
+    T = resid.T
+    x = resid.pack()
+    y = resid.pack_global()
+    resid.set_global(y)
     P = x.shape[1]
     lam = 1e-3
     with torch.no_grad():
-        cost = float(fc.total(x))
+        cost = float(resid.total(x))
         history = [cost / max(T, 1)]
         for it in range(stage.iterations):
-            system = _normal_equations(fc, x, chunk)
+            system = _normal_equations(resid, x, chunk)
             improved = False
             for _ in range(8):
                 try:
@@ -426,25 +429,25 @@ def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 
                     continue
                 cand = x + torch.as_tensor(dx, dtype=x.dtype).reshape(T, P)
                 y1 = y + torch.as_tensor(dy, dtype=y.dtype)
-                fc.set_global(y1)
-                c1 = float(fc.total(cand))
+                resid.set_global(y1)
+                c1 = float(resid.total(cand))
                 if np.isfinite(c1) and c1 < cost:
                     x, y, cost, improved = cand, y1, c1, True
                     lam = max(lam / 3, 1e-9)
                     break
-                fc.set_global(y)
+                resid.set_global(y)
                 lam = min(lam * 4, 1e9)
             history.append(cost / max(T, 1))
             log.debug("lm %s iteration %d: objective %.6g, damping %.2g", stage.name, it,
                       history[-1], lam)
             if not improved or history[-2] - history[-1] < 1e-6 * max(history[-2], 1e-9):
                 break
-        fc.store(x)
+        resid.store(x)
         for n in blocks:
-            getattr(params, n).copy_(fc.values[n].to(getattr(params, n).dtype))
-        if fc.use_betas:
-            params.betas.copy_(fc.betas.to(params.betas.dtype))
-        if fc.free_views:
-            cams.rotvec.copy_(fc.rotvec.to(cams.rotvec.dtype))
-            cams.dt.copy_(fc.dt.to(cams.dt.dtype))
+            getattr(params, n).copy_(resid.values[n].to(getattr(params, n).dtype))
+        if resid.use_betas:
+            params.betas.copy_(resid.betas.to(params.betas.dtype))
+        if resid.free_views:
+            cams.rotvec.copy_(resid.rotvec.to(cams.rotvec.dtype))
+            cams.dt.copy_(resid.dt.to(cams.dt.dtype))
     return history[1:]
