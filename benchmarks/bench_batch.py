@@ -157,7 +157,8 @@ def one_run(executor: str, n: int, work: Path, assets: Path, avatar_steps: int) 
            "wall_s": wall, "cpu_s": cpu, "command_cpu_s": float(jobs["cpu_seconds"].sum()),
            "command_wall_s": float(jobs["seconds"].sum()),
            "jobs_per_s": len(jobs) / wall, "avatar_steps": avatar_steps,
-           "date": date.today().isoformat()}
+           # the machine's 5-minute load average at the end (2 cores: above ~2 it was shared)
+           "load_avg_5min": os.getloadavg()[1], "date": date.today().isoformat()}
     per_rule = rule_costs(jobs).assign(executor=executor, sequences=n)
     return row, per_rule
 
@@ -218,15 +219,21 @@ def main() -> None:
                       f"{row['jobs_per_s']:.3f} jobs/s", flush=True)
                 rows.append(row)
                 rules.append(per_rule)
+                save(rows, rules)  # after every run: a stopped benchmark keeps what it measured
+    print(save(rows, rules).to_string(index=False))
+
+
+def save(rows: list[dict], rules: list[pd.DataFrame]) -> pd.DataFrame:
+    """Write batch.parquet (with the wall time each added sequence costs, per executor) and
+    batch_rules.parquet; returns the batch table."""
     table = pd.DataFrame(rows)
-    for executor, g in table.groupby("executor"):
+    for _, g in table.groupby("executor"):
         g = g.sort_values("sequences")
         table.loc[g.index, "marginal_wall_s_per_sequence"] = (
             g["wall_s"].diff() / g["sequences"].diff()).values
     table.to_parquet(OUT / "batch.parquet", index=False)
     pd.concat(rules, ignore_index=True).to_parquet(OUT / "batch_rules.parquet", index=False)
-    print(table.to_string(index=False))
-
+    return table
 
 if __name__ == "__main__":
     main()
