@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
     "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
+    "sheet": ("signsplat.synth.cli", "write a sequence sheet (sheet synth: N signers x M sentences)"),
     "simulate-training-set": ("signsplat.synth.cli", "simulate the detector training scenes"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),

@@ -34,8 +34,14 @@ def _html(argv: list[str]) -> int:
     p.add_argument("--title", default="SignSplat report")
     p.add_argument("--tables", default=None,
                    help="also write every table of the report as TSV files in this folder")
+    p.add_argument("--benchmarks-json", default=None,
+                   help='rule -> {"benchmark": pattern, "log": pattern} ({"segment": '
+                   '{"benchmark": "results/_benchmarks/{scene}/segment.tsv", "log": '
+                   '"results/_logs/{scene}/segment.log"}, ...}): names the rule of each job in '
+                   'the cost tables and finds its SLURM step')
     a = p.parse_args(argv)
-    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables)
+    patterns = json.loads(a.benchmarks_json) if a.benchmarks_json else None
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables, patterns)
     print(f"report: {Path(out).resolve()}")
     return 0
 

@@ -23,7 +23,7 @@ from signsplat.avatar.views import WEAK_VIEW_DB, weak_views
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
-from signsplat.report import plots, runs
+from signsplat.report import accounting, plots, runs
 from signsplat.report.collect import Results, bench_seconds, collect
 
 
@@ -453,9 +453,11 @@ def stitch_section(res: Results, assets: Assets) -> Section:
     return sec
 
 
-def runtime_section(res: Results, assets: Assets) -> Section:
+def runtime_section(res: Results, assets: Assets,
+                    benchmark_patterns: dict | None = None) -> Section:
     sec = Section("runtimes", "9. Run time per rule",
-                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory).")
+                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory); for a "
+                  "run on SLURM, the scheduler's own figures (sacct) beside them.")
     b = res.benchmarks
     if not len(b):
         sec.missing = "no benchmark files in results/_benchmarks"
@@ -465,6 +467,8 @@ def runtime_section(res: Results, assets: Assets) -> Section:
                               float(b["seconds"].sum()), "sum over all jobs"))
     sec.add_table("Jobs", b.drop(columns=["file"]).sort_values(
         "seconds", ascending=False))
+    for caption, df in accounting.cost_tables(res.root, benchmark_patterns):
+        sec.add_table(caption, df)
     return sec
 
 
@@ -506,12 +510,13 @@ nav a{margin-right:1em}
 """)
 
 
-def build_sections(res: Results, report_dir: Path, demo: str = "demo") -> list[Section]:
+def build_sections(res: Results, report_dir: Path, demo: str = "demo",
+                   benchmark_patterns: dict | None = None) -> list[Section]:
     assets = Assets(report_dir)
     return [scene_section(res, assets), perception_section(res), fit_section(res, assets),
             colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
             sweep_section(res, assets, demo), stitch_section(res, assets),
-            runtime_section(res, assets)]
+            runtime_section(res, assets, benchmark_patterns)]
 
 
 def write_tables(sections: list[Section], folder: Path) -> list[Path]:
@@ -535,12 +540,14 @@ def write_tables(sections: list[Section], folder: Path) -> list[Path]:
 
 def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
                  demo: str = "demo", title: str = "SignSplat report",
-                 tables_dir: str | Path | None = None) -> Path:
+                 tables_dir: str | Path | None = None,
+                 benchmark_patterns: dict | None = None) -> Path:
     """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
-    ``tables_dir``, every table also as a TSV file there."""
+    ``tables_dir``, every table also as a TSV file there. ``benchmark_patterns`` (rule ->
+    its benchmark and log file patterns) names each job's rule in the cost tables."""
     out = Path(out)
     res = collect(results, repo_scenes)
-    sections = build_sections(res, out.parent, demo)
+    sections = build_sections(res, out.parent, demo, benchmark_patterns)
     if tables_dir is not None:
         write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),
