@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
     "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
+    "suite-scenes": ("signsplat.synth.suite", "write the fit's generalisation suite of scenes"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
     "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),
