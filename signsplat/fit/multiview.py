@@ -38,7 +38,7 @@ from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_up_direction,
                                    triangulate)
 from signsplat.fit.flow import flow_targets
-from signsplat.fit.rig_init import PNP_KEYPOINTS, initial_rig, median_observation  # noqa: F401
+from signsplat.fit.rig_init import PNP_KEYPOINTS, exchange_sides, initial_rig, side_swaps
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
@@ -126,7 +126,17 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         log.info("cameras: calibrated extrinsics, held fixed; body placed at %s m",
                  np.round(init["transl"][0], 3).tolist())
     else:
-        hyp = initial_rig(neutral_keypoints(kpm, dtype, device), obs, K, width, height, mv)
+        kp0 = neutral_keypoints(kpm, dtype, device)
+        hyp = initial_rig(kp0, obs, K, width, height, mv)
+        if mv["repair_sides"]:  # exchanged sides mislead the initialisation too: once more
+            placed = [v for v, st in enumerate(hyp.status)
+                      if st not in ("no_detections", "unplaced")]
+            thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
+            swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs, thr, views=placed)
+            if swaps.sum() > 0.02 * swaps.size:
+                log.info("camera init: left and right exchanged in %d view-frames; placing "
+                         "the cameras again without them", int(swaps.sum()))
+                hyp = initial_rig(kp0, exchange_sides(obs, swaps), K, width, height, mv)
         status = hyp.status
         rig0 = Rig(K=np.asarray(K, float), R=hyp.R, t=hyp.t, width=np.asarray(width),
                    height=np.asarray(height))
@@ -150,6 +160,14 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                      **{f"camera_init_{k}_px": float(x) for k, x in hyp.scores.items()}}
         log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
                  status, hyp.winner, ref, np.round(rms, 2).tolist())
+    if mv["repair_sides"]:
+        thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
+        swaps = side_swaps(rig0.K, rig0.R, rig0.t, obs, thr, views=solved)
+        if swaps.any():
+            obs = exchange_sides(obs, swaps)
+            log.info("left and right exchanged back in %d view-frames (views %s)",
+                     int(swaps.sum()), sorted(set(np.nonzero(swaps)[0].tolist())))
+        extra_log["side_swaps"] = int(swaps.sum())
     t_init = time.perf_counter()
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
