@@ -12,9 +12,16 @@ $(BIN)/python:
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 
-# torch first, pinned: its CPU wheel is taken before anything can ask for a CUDA build.
+# PyTorch first, the CPU build, before anything can ask for torch: PyPI's torch==2.13.0 is a
+# multi-GB CUDA build. TORCH names the build (the +cpu local version makes pip refuse any
+# other) and TORCH_INDEX an extra index that serves it (PyTorch's CPU index; a local wheel
+# folder in pip's own configuration is used too). For a CUDA machine, e.g.:
+#   make TORCH=torch==2.13.0 TORCH_INDEX=https://download.pytorch.org/whl/cu128
+TORCH       ?= torch==2.13.0+cpu
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) "$(TORCH)"
 	$(BIN)/pip install -q -e ".[test]"
 	@touch $(STAMP)
 
@@ -33,8 +40,10 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
+# The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
+# pytest prints its time and the slowest tests at the end.
 test: $(STAMP) chromium
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15
 
 bench-rasterizer: $(STAMP)
 	$(BIN)/python benchmarks/bench_rasterizer.py

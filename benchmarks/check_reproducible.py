@@ -70,12 +70,13 @@ def main() -> None:
     missing = [str(f) for f in inputs.values() if not f.exists()]
     if missing:
         sys.exit(f"missing inputs (run the workflow for {args.scene!r} first): {missing}")
-    cfg = json.dumps({"train": {"threads": args.threads, "iterations": args.steps}})
+    cfg = json.dumps({"train": {"iterations": args.steps}})
     with tempfile.TemporaryDirectory(prefix="signsplat-repro-") as tmp:
         outs = [Path(tmp) / f"run{i}" for i in range(args.runs)]
         cmds = [[sys.executable, "-m", "signsplat", "train-avatar",
                  *[x for k, v in inputs.items() for x in (k, str(v))],
-                 "--config-json", cfg, "--variant", "repro", "--out", str(o), "--no-progress"]
+                 "--config-json", cfg, "--variant", "repro", "--out", str(o), "--no-progress",
+                 "--threads", str(args.threads)]
                 for o in outs]
         t0 = time.perf_counter()
         if args.at_once:

@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gloss-library": ("signsplat.synth.cli", "write the synthetic gloss library (Parquet)"),
     "extract-frames": ("signsplat.io.cli", "extract frames of real footage (one video per camera)"),
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
+    "simulate-training-set": ("signsplat.synth.cli", "simulate the detector training scenes"),
     "suite-scenes": ("signsplat.synth.suite", "write the fit's generalisation suite of scenes"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
@@ -29,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("signsplat.fit.cli", "SMPL-X fitting, multi-view or single view"),
     "colmap-compare": ("signsplat.colmap.cli", "COLMAP reconstruction vs the SMPL-X camera solve"),
     "train-avatar": ("signsplat.avatar.cli", "train the Gaussian-splat avatar"),
-    "evaluate": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),
+    "evaluate-avatar": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),
     "sign": ("signsplat.stitch.cli", "English sentence -> stitched signed video"),
     "report": ("signsplat.report.cli", "write the HTML report"),
 }

@@ -11,6 +11,7 @@ Schemas live in ``workflow/schemas``; a schema may ``$ref`` a sibling file by re
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import os
 from pathlib import Path
@@ -53,7 +54,6 @@ def _registry() -> Registry:
         contents.pop("$schema", None)
         resources.append((uri, Resource.from_contents(contents, default_specification=_SPEC)))
     return Registry().with_resources(resources)
-
 
 
 def _with_defaults(validator_class):
@@ -128,16 +128,32 @@ def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>"
     return data
 
 
-def default_mismatches(cls: type, section: dict) -> list[str]:
-    """Fields of the dataclass ``cls`` whose code default differs from the validated config
-    ``section`` (e.g. ``validate({}, schema)["robust"]``): one line per field naming both
-    values. Fields without a code default, and code defaults of keys the section does not
-    have, are not compared (the section is the one home of a default)."""
-    import dataclasses
+def schema_defaults(schema_name: str, *keys: str) -> Any:
+    """What a schema fills into an empty section: ``validate({}, schema_name)``, then the value
+    at ``keys`` (e.g. ``schema_defaults("stages/perception.schema.yaml", "train")``)."""
+    data = validate({}, schema_name, schema_name)
+    for key in keys:
+        data = data[key]
+    return data
+
+
+def default_mismatches(cls: type, defaults: dict, rename: dict[str, str] | None = None) -> list[str]:
+    """Fields of dataclass ``cls`` whose own default differs from the schema's.
+
+    ``defaults`` is the schema-filled section (:func:`schema_defaults`); ``rename`` maps a
+    field name to its config key where they differ. A field without a default, or whose key
+    the section lacks, carries no second copy and is not compared; lists equal tuples.
+    Returns one line per difference, ``Class.field: code X, schema Y``.
+    """
+    rename = rename or {}
+
+    def plain(v):
+        return [plain(x) for x in v] if isinstance(v, (list, tuple)) else v
 
     out = []
     for f in dataclasses.fields(cls):
-        if f.name not in section:
+        key = rename.get(f.name, f.name)
+        if key not in defaults:
             continue
         if f.default is not dataclasses.MISSING:
             code = f.default
@@ -145,15 +161,14 @@ def default_mismatches(cls: type, section: dict) -> list[str]:
             code = f.default_factory()
         else:
             continue
-        if code != section[f.name]:
-            out.append(f"{cls.__name__}.{f.name}: code default {code!r}, schema "
-                       f"{section[f.name]!r}")
+        if plain(code) != plain(defaults[key]):
+            out.append(f"{cls.__name__}.{f.name}: code {code!r}, schema {defaults[key]!r}")
     return out
 
 
-def assert_defaults_match(cls: type, section: dict) -> None:
+def assert_defaults_match(cls: type, section: dict, rename: dict[str, str] | None = None) -> None:
     """Raise AssertionError listing :func:`default_mismatches` (for tests)."""
-    bad = default_mismatches(cls, section)
+    bad = default_mismatches(cls, section, rename)
     assert not bad, "; ".join(bad)
 
 

@@ -23,6 +23,23 @@ def select_device(name: str = "auto") -> torch.device:
     return torch.device(name)
 
 
+def add_runtime_args(parser, gpu: bool = True) -> None:
+    """The options every stage command shares: ``--threads`` (the workflow passes its rule's
+    ``threads``, the one place a thread count is set) and, for a stage with a GPU path,
+    ``--device`` (the config's ``device``)."""
+    parser.add_argument("--threads", type=int, default=1,
+                        help="CPU threads of torch, Numba and onnxruntime (default 1)")
+    if gpu:
+        parser.add_argument("--device", default="auto",
+                            help="auto (CUDA when torch sees it), cpu, cuda or cuda:N")
+
+
+def use_runtime(args) -> torch.device:
+    """Apply ``--threads`` and return the device of ``--device`` (the CPU without one)."""
+    set_threads(args.threads)
+    return select_device(getattr(args, "device", "cpu"))
+
+
 def set_threads(n: int) -> None:
     """Use ``n`` threads in torch and in the Numba rasterizer (two spinning pools on shared
     cores are much slower than one each).

@@ -27,8 +27,17 @@ def test_module_entry_point_runs():
     assert "usage: signsplat" in res.stdout
 
 
-def test_device_selection():
+@pytest.mark.parametrize("has_cuda", [False, True])
+def test_device_selection_follows_what_torch_sees(monkeypatch, has_cuda):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: has_cuda)
+    assert select_device("auto").type == ("cuda" if has_cuda else "cpu")
     assert select_device("cpu").type == "cpu"
-    assert select_device("auto").type in ("cpu", "cuda")
-    with pytest.raises(SignSplatError, match="allowed"):
+    if has_cuda:
+        assert select_device("cuda:1") == torch.device("cuda", 1)
+    else:
+        with pytest.raises(SignSplatError, match="no CUDA device.*allowed here: 'auto' or 'cpu'"):
+            select_device("cuda")
+    with pytest.raises(SignSplatError, match="unknown device 'tpu'; allowed"):
         select_device("tpu")

@@ -38,11 +38,17 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     res = snakemake("-n", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     counts = job_counts(res.stdout)
-    default = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
-    assert counts["body_model"] == 1 and counts["gloss_library"] == 1
-    assert counts["simulate"] >= 2  # studio6 and single at least
-    assert counts["all"] == 1
-    assert default["results"] == "results"
+    # the sheet's two synthetic sequences (studio6: 6 cameras, single: 1): one chain each,
+    # COLMAP only for the multi-view one, one stitching job for all sentences, one report
+    per_sequence = ("simulate", "segment", "detect_keypoints", "perception_eval", "fit_smplx",
+                    "train_avatar", "evaluate_avatar")
+    assert counts == {"body_model": 1, "gloss_library": 1, "colmap_compare": 1,
+                      "stitch_video": 1, "report": 1, "all": 1, "total": 20,
+                      **{rule: 2 for rule in per_sequence}}
+    # every output of the plan is under the results folder the command line gave
+    outputs = re.findall(r"^    output: (.+)$", res.stdout, re.M)
+    assert outputs and all(o.startswith(str(tmp_path)) for line in outputs
+                           for o in line.split(", ") if not o.startswith("reports/"))
 
 
 def test_dry_run_rejects_an_unknown_effect(tmp_path):
@@ -92,12 +98,13 @@ def tiny_study_config(tmp_path, **extra) -> Path:
             {"name": "body", "iterations": 5, "lr": 0.03, "groups": ["root", "body", "betas"]}]}},
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,
-                             "log_every": 2, "threads": 1, "checkpoint_every": 50},
+                             "log_every": 2, "checkpoint_every": 50},
                    "eval": {"refine_steps": 0, "save_images": 2},
                    "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 4}},
         # (merged over config/config.yaml's sections: the default bases' other keys stay)
         # fitted like the demo avatar, so the full model and the sweep centre are `demo`
-        "ablations": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}}},
+        "ablations": {"base": {"train": {"smplx_source": "fitted"}}, "iterations": [4],
+                      "test_views": [1], "regularizer_scales": [0, 0.5, 1]},
         "sweep": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}},
                   "iterations": [2], "resolution": [],
                   "max_points": []},
@@ -123,7 +130,7 @@ def _default_studies():
 
 
 def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
-    res = snakemake("-n", "ablations", "--config", f"results={tmp_path}")
+    res = snakemake("-n", "-p", "ablations", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     counts = job_counts(res.stdout)
     assert counts["ablation_table"] == 1 and counts["ablations"] == 1
@@ -133,10 +140,21 @@ def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
     # the source row trains on the SMPL-X source the base does not use
     on_gt = base.get("train", {}).get("smplx_source") == "ground_truth"
     source_row = "abl_fitted_smplx" if on_gt else "abl_gt_smplx"
+    budgets = _default_studies()[0]["iterations"]
+    rows = {full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", source_row}
+    # every row at each budget, and the regulariser's scales besides 0 and 1 (which are the
+    # rows without and with it)
+    scales = [s for s in _default_studies()[0]["regularizer_scales"] if s not in (0, 1)]
     assert planned_variants(res.stdout, "train_avatar") == {
-        full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", source_row}
+        f"{r}_i{b}" for r in rows for b in budgets} | {
+        f"abl_reg{s:g}_i{b}".replace(".", "p") for s in scales for b in budgets}
     assert counts["fit_smplx"] == 1  # one of the rows trains on fitted SMPL-X
+    assert counts["regularizer_table"] == 1
     assert f"{tmp_path}/studio6/ablations.parquet" in res.stdout
+    # every row holds out the same cameras (novel-view scores)
+    views = _default_studies()[0]["test_views"]
+    cmds = [line for line in res.stdout.splitlines() if "train-avatar" in line]
+    assert cmds and all(f'"test_views": {views}' in c for c in cmds)
 
 
 def test_dry_run_of_the_quality_target_trains_the_quality_profile_once(tmp_path):
@@ -177,11 +195,9 @@ def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path)
     cfg = tiny_study_config(tmp_path)
     res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))
     assert res.returncode == 0, res.stderr + res.stdout
-    # avatar.train.smplx_source defaults to fitted: the source row trains on ground truth;
-    # the demo profile leaves regularisation off, so the "w/o regularisation" row is the demo
     assert planned_variants(res.stdout, "train_avatar") == {
-        "demo", "abl_full", "abl_no_dens", "abl_no_acc", "abl_static", "abl_gt_smplx",
-        "sw_iterations2"}
+        "demo", "abl_full_i4", "abl_no_reg_i4", "abl_no_dens_i4", "abl_no_acc_i4",
+        "abl_static_i4", "abl_gt_smplx_i4", "abl_reg0p5_i4", "sw_iterations2"}
     bad = tiny_study_config(tmp_path, ablations={"scene": "nowhere", "base": {}})
     res = snakemake("-n", "ablations", "--configfile", str(bad))
     assert res.returncode != 0
@@ -211,7 +227,15 @@ def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path):
     for _, row in sweep.iterrows():
         bench = results / "_benchmarks" / "tiny" / f"train_avatar_{row.setting}.tsv"
         assert row.seconds == pytest.approx(pd.read_csv(bench, sep="\t")["s"].mean())
-    assert sweep.pareto_psnr.any() and np.isfinite(sweep.psnr).all()
+    assert np.isfinite(sweep.psnr).all() and np.isfinite(sweep.seconds).all()
+    # the front flags of the table's own (seconds, score) pairs: on it unless another setting
+    # is no slower and no worse, and better in one
+    for score in ("psnr", "ssim"):
+        for _, row in sweep.iterrows():
+            others = sweep[sweep.setting != row.setting]
+            beaten = ((others.seconds <= row.seconds) & (others[score] >= row[score])
+                      & ((others.seconds < row.seconds) | (others[score] > row[score]))).any()
+            assert row[f"pareto_{score}"] == (not beaten), (score, row.setting)
     assert (results / "tiny" / "sweep.png").stat().st_size > 5000
     # the stitched video of the trained avatar, its 2D baseline and table
     ev = pd.read_parquet(stitched)

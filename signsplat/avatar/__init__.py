@@ -12,11 +12,12 @@ Modules (each small, functional where it can be):
 - ``regularize``: neighbourhood variance over mesh-connected neighbourhoods, displacement terms.
 - ``losses``: L1, D-SSIM (kornia), PSNR/SSIM, LPIPS from a local weight file.
 - ``data``: scene tables -> :class:`SceneData`; novel-pose split.
-- ``train``: :class:`AvatarTrainer` (accumulation, SMPL-X fine-tuning, checkpoints),
-  :func:`load_avatar`.
+- ``train``: :class:`AvatarTrainer` (accumulation, SMPL-X fine-tuning, checkpoints).
+- ``checkpoint``: :func:`build_model` and :func:`load_avatar`, a trained avatar ready to render
+  (also ``signsplat.avatar.load_avatar``, the package's public entry for other stages).
 - ``evaluate``: :func:`evaluate_checkpoint` -> ``avatar_metrics`` and per-camera
   ``avatar_view_metrics`` rows (``views``).
-- ``ply``: standard 3DGS PLY writer/reader. ``cli``: ``train-avatar`` and ``evaluate``.
+- ``ply``: standard 3DGS PLY writer/reader. ``cli``: ``train-avatar`` and ``evaluate-avatar``.
 
 Typical use::
 
@@ -28,3 +29,14 @@ Typical use::
     trainer = AvatarTrainer(BodyModel.from_file(path), data, cfg)
     trainer.run(checkpoint="checkpoint.pt")
 """
+
+__all__ = ["load_avatar"]
+
+
+def __getattr__(name: str):
+    # imported on first use: the config and report modules import this package without torch
+    if name == "load_avatar":
+        from signsplat.avatar.checkpoint import load_avatar
+
+        return load_avatar
+    raise AttributeError(f"module 'signsplat.avatar' has no attribute {name!r}")

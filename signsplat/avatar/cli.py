@@ -1,4 +1,4 @@
-"""``signsplat train-avatar`` and ``signsplat evaluate``: thin wrappers over the library.
+"""``signsplat train-avatar`` and ``signsplat evaluate-avatar``: thin wrappers over the library.
 
 train-avatar writes ``checkpoint.pt`` (resumable, atomic), ``avatar.ply`` (3DGS PLY) and
 ``train_log.parquet`` into ``--out``; evaluate writes ``metrics.parquet``, ``views.parquet``
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from signsplat.device import select_device, set_threads
+from signsplat.device import add_runtime_args, use_runtime
 
 log = logging.getLogger("signsplat.avatar")
 
@@ -26,8 +26,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--smplx", required=True, help="smplx_params table (fitted or ground truth)")
     p.add_argument("--config-json", default="{}", help="the avatar config section as JSON")
     p.add_argument("--variant", default="default")
-    p.add_argument("--device", default="auto")
     p.add_argument("--out", required=True, help="output folder")
+    add_runtime_args(p)
 
 
 def _setup(args):
@@ -37,8 +37,7 @@ def _setup(args):
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = avatar_config(json.loads(args.config_json), "--config-json")
-    set_threads(cfg.train.threads)
-    device = select_device(args.device)
+    device = use_runtime(args)
     body = BodyModel.from_file(args.body).to(device)
     data = load_scene(args.frames, args.cameras, args.smplx, cfg.train.resolution)
     return cfg, device, body, data
@@ -93,11 +92,11 @@ def export_ply(trainer, path: Path) -> Path:
                               g.colors[0], cfg.model.sh_degree)
 
 
-def evaluate(argv: list[str]) -> int:
+def evaluate_avatar(argv: list[str]) -> int:
     from signsplat.avatar.evaluate import evaluate_checkpoint
     from signsplat.io.tables import write_table
 
-    p = argparse.ArgumentParser(prog="signsplat evaluate", description=__doc__)
+    p = argparse.ArgumentParser(prog="signsplat evaluate-avatar", description=__doc__)
     _common(p)
     p.add_argument("--checkpoint", required=True)
     args = p.parse_args(argv)

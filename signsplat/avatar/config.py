@@ -21,14 +21,9 @@ SCHEMA = "stages/avatar.schema.yaml"
 # Overrides applied on top of the schema defaults (which are the ``demo`` profile).
 PROFILES: dict[str, dict[str, Any]] = {
     "demo": {},
-    # The demo's settings trained 4800 steps (the demo: 800) with a 90k point cap, not 60k: on
-    # fitted SMPL-X the limit is the fitted poses rather than the texture's resolution, so the
-    # 12 mm grid stays (docs/avatar.md, "The quality profile"). Densification stops at step
-    # 1800 and the SH degree rises there (rise_at 0.375): the profile's measured run is its
-    # 2400-step predecessor (which rose at 0.75 x 2400 = 1800) resumed to 3600 and then to 4800
-    # steps, which this schedule makes the same run as one uninterrupted (the learning rates are
-    # constant). The profile before (8 mm grid, 200k points, 6000 steps of 4 poses) was
-    # estimated at 6-7 h on 2 cores and never run.
+    # The demo's settings trained longer with a higher point cap; densification stops and the
+    # SH degree rises at step 1800, as in its measured runs (docs/avatar.md, "The quality
+    # profile").
     "quality": {
         "train": {"iterations": 4800},
         "strategy": {"refine_stop": 1800, "max_points": 90000},
@@ -145,7 +140,6 @@ class TrainConfig:
     checkpoint_every: int
     log_every: int
     seed: int
-    threads: int
     render_backend: str
     ply_frame: int  # -1 = export the canonical rest pose; otherwise this frame's pose
     smplx_source: str

@@ -35,14 +35,19 @@ import numpy as np
 import pandas as pd
 import torch
 
+from signsplat.avatar.checkpoint import SmplxParams, load_avatar
 from signsplat.avatar.config import AvatarConfig
 from signsplat.avatar.data import SceneData, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr, ssim
 from signsplat.avatar.model import AvatarModel
 from signsplat.avatar.poses import carry_corrections
 from signsplat.avatar.regions import PART_JOINTS, part_box
-from signsplat.avatar.train import (RasterizeFn, SmplxParams, default_rasterizer, eval_eps2d,
-                                    render_gaussians)
+from signsplat.avatar.train import (
+    RasterizeFn,
+    default_rasterizer,
+    eval_eps2d,
+    render_gaussians,
+)
 from signsplat.avatar.views import per_view, weak_views
 from signsplat.device import make_deterministic
 from signsplat.io.images import write_png
@@ -165,7 +170,7 @@ class Evaluator:
 
         Adam moves every free parameter by about ``refine_lr`` per step whatever its gradient,
         so from a pose that is already right (ground-truth SMPL-X) the refinement can drift away
-        (measured on studio6: 29.0 dB before, 23.7 dB after). The refined pose is therefore kept
+        (docs/avatar.md). The refined pose is therefore kept
         only if its image loss summed over ``views`` is lower than the starting pose's."""
         params = self.frame_params(frame_i)
         start = {k: v.clone() for k, v in params.items()}
@@ -326,7 +331,6 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, body, data: SceneData, va
     ``overrides`` may replace the ``eval`` section of the training config.
     """
     from signsplat.avatar.config import avatar_config, to_dict
-    from signsplat.avatar.train import load_avatar
 
     t0 = time.perf_counter()
     model, smplx, state, cfg = load_avatar(checkpoint, body, device)

@@ -31,14 +31,15 @@ from signsplat.avatar.model import POINT_BUFFERS, POINT_PARAMS, AvatarModel
 
 @dataclass
 class MeshDensifyStrategy:
-    """Densification and pruning of mesh-anchored Gaussians; every knob a field."""
+    """Densification and pruning of mesh-anchored Gaussians; every knob a field, its default
+    the avatar schema's (``strategy`` section; tests/test_config_defaults.py keeps them equal)."""
 
     grad_threshold: float = 0.0002
-    refine_start: int = 200
-    refine_stop: int = 1200
-    refine_every: int = 100
+    refine_start: int = 100
+    refine_stop: int = 600
+    refine_every: int = 50
     reset_every: int = 0
-    max_points: int = 40000
+    max_points: int = 60000
     max_new_per_refine: int = 3000
     prune_opacity: float = 0.02
     prune_scale_fraction: float = 0.98

@@ -24,22 +24,25 @@ from typing import Any, Callable
 import numpy as np
 import pandas as pd
 import torch
-from torch import nn
 
 from signsplat.avatar.cameras import CameraRefinement
+from signsplat.avatar.checkpoint import SmplxParams, build_model
+from signsplat.avatar.colour_init import (
+    initialise_colours,
+    observed_colours,
+    sample_pairs,
+)
 from signsplat.avatar.config import AvatarConfig, to_dict
-from signsplat.avatar.data import SMPLX_BLOCKS, SceneData, split_frames, target
+from signsplat.avatar.data import SceneData, split_frames, target
 from signsplat.avatar.losses import image_loss, load_lpips, psnr
-from signsplat.avatar.model import POINT_PARAMS, AvatarModel, sh_degree_at
+from signsplat.avatar.model import POINT_PARAMS, sh_degree_at
 from signsplat.avatar.regions import part_box
-from signsplat.avatar.colour_init import initialise_colours, observed_colours, sample_pairs
 from signsplat.avatar.regularize import Regularizer, displacement_terms
 from signsplat.avatar.strategy import MeshDensifyStrategy
-from signsplat.avatar.upsample import upsample_mesh
 from signsplat.device import make_deterministic
 from signsplat.io.atomic import atomic_path
-from signsplat.render import DEFAULT_EPS2D
 from signsplat.io.tables import Table, register_table
+from signsplat.render import DEFAULT_EPS2D
 
 log = logging.getLogger(__name__)
 
@@ -68,47 +71,6 @@ def default_rasterizer() -> RasterizeFn:
     return rasterization
 
 
-def canonical_template(body, betas: torch.Tensor) -> torch.Tensor:
-    """(V, 3) rest-pose vertices of the body with ``betas`` (1, k)."""
-    with torch.no_grad():
-        return body(betas=betas).v_shaped[0]
-
-
-def build_model(body, betas: torch.Tensor, cfg: AvatarConfig) -> AvatarModel:
-    """Upsample the canonical mesh of ``body`` (shape ``betas``) and build the avatar."""
-    template = canonical_template(body, betas)
-    points = upsample_mesh(template, body.faces, body.part_labels, cfg.upsample.edge_length,
-                           cfg.upsample.face_area, cfg.upsample.interior) if cfg.upsample.max_rounds else \
-        upsample_mesh(template, body.faces, body.part_labels, float("inf"), float("inf"))
-    return AvatarModel(points, body.faces, body.lbs_weights, template, cfg.model)
-
-
-class SmplxParams(nn.Module):
-    """Per-frame SMPL-X blocks (F, k); ``betas`` shared over the sequence (first frame's)."""
-
-    def __init__(self, params: dict[str, torch.Tensor], learnable: bool):
-        super().__init__()
-        self.learnable = learnable
-        for name in SMPLX_BLOCKS:
-            if name not in params:
-                continue
-            value = params[name].float().clone()
-            if name == "betas":
-                value = value[:1]
-            if learnable:
-                setattr(self, name, nn.Parameter(value))
-            else:
-                self.register_buffer(name, value)
-        self.names = [n for n in SMPLX_BLOCKS if n in params]
-
-    def get(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
-        out = {}
-        for name in self.names:
-            t = getattr(self, name)
-            out[name] = t.expand(len(idx), -1) if name == "betas" else t[idx]
-        return out
-
-
 def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, Ks: torch.Tensor,
                      width: int, height: int, background: torch.Tensor,
                      backend: str, eps2d: float = DEFAULT_EPS2D
@@ -131,8 +93,8 @@ def eval_eps2d(train_resolution: int, width: int) -> float:
     """Dilation for rendering at ``width`` an avatar trained at ``train_resolution`` (0 =
     native). The 0.3 px^2 dilation of training is part of what the avatar learned: trained at
     128 px it covers four times the world-space area of 0.3 px^2 at 256 px, and its Gaussians
-    shrink to rely on it. Rendered at 256 px with 0.3 they leave holes (measured on studio6:
-    17.6 dB). Keeping the dilation's world-space footprint keeps what was learned."""
+    shrink to rely on it; rendered at 256 px with 0.3 they leave holes. Keeping the dilation's
+    world-space footprint keeps what was learned."""
     if train_resolution <= 0:
         return DEFAULT_EPS2D
     return DEFAULT_EPS2D * (width / train_resolution) ** 2
@@ -456,20 +418,3 @@ class AvatarTrainer:
         if checkpoint:
             self.save_checkpoint(checkpoint)
         return pd.DataFrame(self.log_rows)
-
-
-def load_avatar(path: str | os.PathLike, body, device: torch.device | str = "cpu"):
-    """(model, smplx params module, checkpoint dict) of a saved checkpoint, ready to render."""
-    from signsplat.avatar.config import avatar_config
-
-    state = torch.load(path, map_location=device, weights_only=False)
-    cfg = avatar_config(state["config"])
-    smplx_state = state["smplx"]
-    learnable = cfg.train.finetune_smplx
-    params = {k: v for k, v in smplx_state.items()}
-    smplx = SmplxParams(params, learnable).to(device)
-    smplx.load_state_dict(smplx_state)
-    model = build_model(body.to(device), smplx.betas.detach(), cfg).to(device)
-    model.resize_like(state["model"])
-    model.load_state_dict(state["model"])
-    return model, smplx, state, cfg

@@ -18,7 +18,7 @@ import pandas as pd
 
 from signsplat.colmap.compare import CompareConfig, compare_scene
 from signsplat.colmap.ply import write_points_ply
-from signsplat.config import validate
+from signsplat.device import add_runtime_args
 from signsplat.errors import InputError
 from signsplat.io.tables import read_table, write_table
 
@@ -35,7 +35,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--ply", help="baseline point cloud PLY (default: beside --out, points.ply)")
     p.add_argument("--ply-dir", help="folder of per-run PLYs (default: beside --out, ply/)")
     p.add_argument("--work-dir", help="parent of the temporary COLMAP folders (default: tmp)")
-    p.add_argument("--threads", type=int, default=1)
+    add_runtime_args(p, gpu=False)
     return p
 
 
@@ -45,7 +45,7 @@ def _config(text: str) -> CompareConfig:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    return CompareConfig.from_dict(validate(data, "stages/colmap.schema.yaml", "--config-json"))
+    return CompareConfig.from_dict(data, "--config-json")
 
 
 def colmap_compare(argv: list[str]) -> int:

@@ -80,67 +80,48 @@ class Setting:
         return cls(name, known, tuple(sorted(d.items())))
 
 
-#: COLMAP's defaults with and without the true intrinsics, and a relaxed mapper (smaller initial
-#: pair and registration thresholds, small models kept) to show failures are not a tuning issue.
-DEFAULT_SETTINGS = (
-    Setting("known_intrinsics", True),
-    Setting("estimated_intrinsics", False),
-    Setting("known_intrinsics_relaxed", True, (
-        ("abs_pose_min_inlier_ratio", 0.1), ("abs_pose_min_num_inliers", 15),
-        ("init_min_num_inliers", 15), ("init_min_tri_angle", 4.0), ("min_model_size", 3),
-        ("min_num_matches", 10))),
-)
-
-
 @dataclass(frozen=True)
 class CompareConfig:
-    """The `colmap` section of the workflow config (see colmap.schema.yaml for the docs)."""
+    """The `colmap` section of the workflow config; its schema (colmap.schema.yaml) documents
+    every field and holds every default: build with :meth:`from_dict`."""
 
-    static_frames: tuple[int, ...] | None = None
-    num_static_frames: int = 3
-    sequence_frames: int = 8
-    settings: tuple[Setting, ...] = DEFAULT_SETTINGS
-    max_num_features: int = 4096
-    min_num_matches: int = 15
-    init_min_num_inliers: int = 100
-    init_min_tri_angle: float = 16.0
-    abs_pose_min_num_inliers: int = 30
-    abs_pose_min_inlier_ratio: float = 0.25
-    min_model_size: int = 10
-    seed: int = 0
-    isolate: bool = True
-    timeout_seconds: float = 1800.0
-    max_runtime_seconds: float = -1.0
+    static_frames: tuple[int, ...] | None
+    num_static_frames: int
+    sequence_frames: int
+    settings: tuple[Setting, ...]
+    mapper: dict  # the base SIFT and mapper thresholds, by MAPPER_KEYS name
+    seed: int
+    isolate: bool
+    timeout_seconds: float
+    max_runtime_seconds: float
 
     @classmethod
-    def from_dict(cls, cfg: dict | None) -> "CompareConfig":
-        cfg = dict(cfg or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise InputError(f"colmap config: unknown key(s) {unknown}; known {sorted(known)}")
+    def from_dict(cls, cfg: dict | None, source: str = "colmap config") -> "CompareConfig":
+        """From a ``colmap`` section; missing keys get the schema's defaults."""
+        from signsplat.config import validate
+
+        cfg = validate(dict(cfg or {}), "stages/colmap.schema.yaml", source)
         if cfg.get("static_frames") is not None:
             cfg["static_frames"] = tuple(int(f) for f in cfg["static_frames"])
-        if "settings" in cfg:
-            cfg["settings"] = tuple(Setting.from_dict(d) for d in cfg["settings"])
-            names = [st.name for st in cfg["settings"]]
-            if len(set(names)) != len(names):
-                raise InputError(f"colmap config: setting names must be unique, got {names}")
+        cfg["settings"] = tuple(Setting.from_dict(d) for d in cfg["settings"])
+        names = [st.name for st in cfg["settings"]]
+        if len(set(names)) != len(names):
+            raise InputError(f"{source}: setting names must be unique, got {names}")
+        cfg["mapper"] = {k: cfg.pop(k) for k in MAPPER_KEYS}
         return cls(**cfg)
 
     def options(self, setting: Setting, threads: int) -> ColmapOptions:
         """The options of one run: the base thresholds, then the setting's overrides."""
-        base = {k: getattr(self, k) for k in MAPPER_KEYS}
-        base.update(dict(setting.overrides))
         return ColmapOptions(
             known_intrinsics=setting.known_intrinsics, num_threads=threads, seed=self.seed,
             max_runtime_seconds=self.max_runtime_seconds, isolate=self.isolate,
-            timeout_seconds=self.timeout_seconds, **base,
+            timeout_seconds=self.timeout_seconds, **{**self.mapper, **dict(setting.overrides)},
         )
 
     def describe(self) -> dict:
-        """Plain-data copy (for table metadata)."""
-        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        """Plain-data copy in the config's layout (for table metadata)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "mapper"}
+        d.update(self.mapper)
         d["settings"] = [{"name": st.name, "known_intrinsics": st.known_intrinsics,
                           **dict(st.overrides)} for st in self.settings]
         return d

@@ -29,15 +29,16 @@ PYCOLMAP_ERRORS = (RuntimeError, ValueError, OSError)
 
 @dataclass(frozen=True)
 class ColmapOptions:
-    """Knobs of one run; defaults are COLMAP's own unless stated.
+    """Knobs of one run. The SIFT and mapper thresholds have no default here: the workflow's
+    come from the ``colmap`` config section (:meth:`signsplat.colmap.compare.CompareConfig.options`).
 
-    known_intrinsics: use the given pinhole K per image and keep it fixed in bundle adjustment;
-        otherwise COLMAP's default (SIMPLE_RADIAL, focal guessed from the image size, refined).
     max_num_features: SIFT features per image.
     min_num_matches, init_min_num_inliers, init_min_tri_angle (degrees), abs_pose_min_num_inliers,
         abs_pose_min_inlier_ratio: mapper thresholds (pair verification, initial pair, adding
         an image); min_model_size: smaller models are discarded (COLMAP caps it at 80 % of
         the images).
+    known_intrinsics: use the given pinhole K per image and keep it fixed in bundle adjustment;
+        otherwise COLMAP's default (SIMPLE_RADIAL, focal guessed from the image size, refined).
     num_threads: threads for extraction, matching and mapping (-1 = all cores).
     seed: random seed of the mapper (reproducible runs).
     max_runtime_seconds: wall-clock cap of the mapping step (-1 = none).
@@ -45,14 +46,14 @@ class ColmapOptions:
     timeout_seconds: the child is killed after this long (only with ``isolate``).
     """
 
+    max_num_features: int
+    min_num_matches: int
+    init_min_num_inliers: int
+    init_min_tri_angle: float
+    abs_pose_min_num_inliers: int
+    abs_pose_min_inlier_ratio: float
+    min_model_size: int
     known_intrinsics: bool = True
-    max_num_features: int = 4096
-    min_num_matches: int = 15
-    init_min_num_inliers: int = 100
-    init_min_tri_angle: float = 16.0
-    abs_pose_min_num_inliers: int = 30
-    abs_pose_min_inlier_ratio: float = 0.25
-    min_model_size: int = 10
     num_threads: int = 1
     seed: int = 0
     max_runtime_seconds: float = -1.0

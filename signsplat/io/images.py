@@ -24,23 +24,26 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     return path
 
 
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as RGB uint8 (H,W,3); a missing or corrupt file names the file."""
+def _read(path: str | os.PathLike, flags: int, what: str) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: image file not found")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        raise InputError(f"{path}: {what} file not found")
+    image = cv2.imread(str(path), flags)
     if image is None:
-        raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
-    return image[..., ::-1].copy()
+        raise InputError(f"{path}: not a readable {what} (corrupt or unsupported format)")
+    return image
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as RGB uint8 (H,W,3); a missing or corrupt file names the file."""
+    return _read(path, cv2.IMREAD_COLOR, "image")[..., ::-1].copy()
 
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """Read a single-channel mask PNG as bool (H,W); errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: mask file not found")
-    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if mask is None:
-        raise InputError(f"{path}: not a readable mask image")
-    return mask > 127
+    return _read(path, cv2.IMREAD_GRAYSCALE, "mask") > 127
+
+
+def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
+    """Write a bool or 0/1 (H,W) mask as a 0/255 PNG, atomically."""
+    return write_png(path, np.where(mask, 255, 0).astype(np.uint8))

@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
-import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
 from signsplat.config import validate
+from signsplat.device import add_runtime_args
 from signsplat.io.tables import write_table
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
 
@@ -26,26 +24,28 @@ def perception_config(text: str | None) -> dict:
     return validate(data, SCHEMA, "--config-json")
 
 
-def specs(cfg: dict) -> tuple[SegmenterSpec, KeypointSpec]:
-    """Model specs from a validated ``perception`` section."""
+def specs(cfg: dict, device: str = "auto") -> tuple[SegmenterSpec, KeypointSpec]:
+    """Model specs from a validated ``perception`` section, run on ``device``."""
     s, k = cfg["segmenter"], cfg["keypoints"]
     seg = SegmenterSpec(
         path=s["model"], input_size=tuple(s["input_size"]) if s["input_size"] else None,
         mean=tuple(s["mean"]), std=tuple(s["std"]), color_order=s["color_order"],
-        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"])
+        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"],
+        device=device)
     kp = KeypointSpec(
         path=k["model"], input_size=tuple(k["input_size"]) if k["input_size"] else None,
         mean=tuple(k["mean"]), std=tuple(k["std"]), color_order=k["color_order"],
         split_ratio=float(k["split_ratio"]), padding=float(k["padding"]),
-        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"])
+        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"],
+        device=device)
     return seg, kp
 
 
 def _parser(prog: str, doc: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"signsplat {prog}", description=doc)
     p.add_argument("--config-json", default=None, help="the perception config section (JSON)")
-    p.add_argument("--threads", type=int, default=None, help="override perception.threads")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_runtime_args(p)
     return p
 
 
@@ -57,8 +57,8 @@ def segment(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, _ = specs(cfg)
-    threads = a.threads or cfg["threads"]
+    seg, _ = specs(cfg, a.device)
+    threads = a.threads
     from signsplat.perception.stages import segment_sequence, timings_table
 
     report = segment_sequence(a.frames, a.out_dir, seg, threads, cfg["skip_bad_frames"],
@@ -80,8 +80,8 @@ def detect_keypoints(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    _, kp = specs(cfg)
-    threads = a.threads or cfg["threads"]
+    _, kp = specs(cfg, a.device)
+    threads = a.threads
     from signsplat.perception.stages import detect_sequence, timings_table
 
     report = detect_sequence(a.frames, a.masks, a.out, kp, threads, cfg["skip_bad_frames"],
@@ -102,25 +102,24 @@ def perception_eval(argv: list[str]) -> int:
     p.add_argument("--timings", nargs="*", default=[], help="part=timings.parquet ...")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, kp = specs(cfg)
+    seg, kp = specs(cfg, a.device)
     from signsplat.perception.evaluate import evaluate_scene, format_table
 
     timing_paths = dict(t.split("=", 1) for t in a.timings)
     df = evaluate_scene(a.sim_dir, a.perception_dir, a.out, seg, kp,
-                        a.threads or cfg["threads"], cfg["eval"]["speed_frames"], timing_paths)
+                        a.threads, cfg["eval"]["speed_frames"], timing_paths)
     print(format_table(df))
     return 0
 
 
 def train_detectors(argv: list[str]) -> int:
-    """Simulate training scenes, train both default detectors side by side, export ONNX."""
+    """Train both default detectors side by side on simulated scenes, export ONNX."""
     p = _parser("train-detectors", train_detectors.__doc__)
-    p.add_argument("--body", help="body model .npz (to simulate training scenes)")
-    p.add_argument("--glosses", help="gloss library .parquet (to simulate training scenes)")
-    p.add_argument("--work", required=True, help="folder for training scenes and logs")
+    p.add_argument("--work", required=True, help="folder for logs and validation outputs")
     p.add_argument("--out-dir", required=True, help="folder for segmenter.onnx, keypoints.onnx")
-    p.add_argument("--sim-dirs", nargs="*", default=None,
-                   help="use these simulated scene folders instead of simulating")
+    p.add_argument("--sim-dirs", nargs="+", required=True,
+                   help="simulated scene folders (signsplat simulate-training-set writes "
+                        "them); the last train.val_scenes are held out")
     p.add_argument("--which", choices=["both", "segmenter", "keypoints"], default="both")
     p.add_argument("--resume-keypoints", default=None,
                    help="keypoint state dict saved after a phase (keypoints.onnx.1.pt, .2.pt) "
@@ -146,15 +145,11 @@ def train_detectors(argv: list[str]) -> int:
 
     tcfg = TrainConfig.from_dict(cfg["train"])
     work, out_dir = Path(a.work), Path(a.out_dir)
-    threads = a.threads or cfg["threads"]
-    t0 = time.perf_counter()
-    if a.sim_dirs:
-        sim_dirs = [str(d) for d in a.sim_dirs]
-    else:
-        if not (a.body and a.glosses):
-            p.error("--body and --glosses are needed unless --sim-dirs is given")
-        sim_dirs = simulate_training_scenes(tcfg, a.body, a.glosses, work / "scenes", threads)
-    t_sim = time.perf_counter() - t0
+    threads = a.threads
+    sim_dirs = [str(d) for d in a.sim_dirs]
+    missing = [d for d in sim_dirs if not (Path(d) / "frames.parquet").is_file()]
+    if missing:
+        p.error(f"--sim-dirs: no frames.parquet in {', '.join(missing)}")
     n_val = min(tcfg.val_scenes, len(sim_dirs) - 1)
     train_dirs = sim_dirs[:len(sim_dirs) - n_val]
     jobs = []
@@ -171,7 +166,7 @@ def train_detectors(argv: list[str]) -> int:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
             summaries = list(pool.map(run_job, jobs))
     val = validate_on_held_out(sim_dirs[len(train_dirs):], out_dir, work / "val", cfg, threads)
-    card = {"simulate_seconds": round(t_sim, 1), "train_scenes": len(train_dirs),
+    card = {"train_scenes": len(train_dirs),
             "validation_scenes": [Path(d).parent.name for d in sim_dirs[len(train_dirs):]],
             "validation": val, "models": summaries}
     from signsplat.io.atomic import write_bytes_atomic
@@ -179,34 +174,6 @@ def train_detectors(argv: list[str]) -> int:
     write_bytes_atomic(out_dir / "training.json", json.dumps(card, indent=2).encode())
     print(json.dumps(card, indent=2))
     return 0
-
-
-def simulate_training_scenes(tcfg, body: str, glosses: str, scenes_dir: Path,
-                             threads: int) -> list[str]:
-    """Simulate (or reuse) the training scenes; returns their ``sim`` folders."""
-    from signsplat.perception.train import training_scene_specs
-    from signsplat.synth.glosses import load_gloss_library
-    from signsplat.synth.simulate import simulate_scene
-
-    library = load_gloss_library(glosses)
-    names = sorted(g for g, clip in library.items() if getattr(clip, "kind", "sign") != "letter")
-    letters = sorted(g for g, clip in library.items() if getattr(clip, "kind", "") == "letter")
-    out = []
-    for spec in training_scene_specs(tcfg.scenes, tcfg.seed, names, letters):
-        sim = scenes_dir / spec["name"] / "sim"
-        spec_file = sim / "spec.json"
-        text = json.dumps(spec, sort_keys=True)
-        done = (sim / "keypoints_gt.parquet").exists() and spec_file.exists() \
-            and spec_file.read_text() == text
-        if not done:
-            if sim.exists():
-                shutil.rmtree(sim)
-            print(f"simulating {spec['name']}", file=sys.stderr, flush=True)
-            validate(spec, "scene.schema.yaml", spec["name"])
-            simulate_scene(spec, body, glosses, sim, threads)
-            spec_file.write_text(text)
-        out.append(str(sim))
-    return out
 
 
 def validate_on_held_out(sim_dirs: list[str], model_dir: Path, work: Path, cfg: dict,

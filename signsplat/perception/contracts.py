@@ -49,6 +49,7 @@ class SegmenterSpec:
     output_index: which output holds the alpha (N, 1, H, W).
     threshold: alpha above which a pixel is foreground.
     batch_size: images per call when the model's batch axis is symbolic.
+    device: 'auto' (CUDA when onnxruntime has it), 'cpu', or 'cuda[:N]' (the config's device).
     """
 
     path: str
@@ -59,6 +60,7 @@ class SegmenterSpec:
     output_index: int = 0
     threshold: float = 0.5
     batch_size: int = 8
+    device: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ class KeypointSpec:
     score_mode: 'clip' maps the raw SimCC maximum to [0, 1] by clipping (rtmlib thresholds
     the raw maxima at ~0.3; the shipped model outputs sigmoid probabilities, unchanged by it).
     min_area: a mask with fewer foreground pixels counts as no person (all scores 0).
+    device: as in :class:`SegmenterSpec`.
     """
 
     path: str
@@ -84,6 +87,7 @@ class KeypointSpec:
     score_mode: str = "clip"
     min_area: int = 50
     batch_size: int = 16
+    device: str = "auto"
 
 
 @dataclass
@@ -107,16 +111,27 @@ class LoadedModel:
         return [np.concatenate([p[j] for p in parts]) for j in range(len(self.output_names))]
 
 
-def providers() -> list[str]:
-    """onnxruntime execution providers: CUDA first when this build has it, then CPU."""
+def providers(device: str = "auto") -> list:
+    """onnxruntime execution providers for a device: with 'auto' CUDA first when this build
+    has it, then the CPU; 'cpu' the CPU only; 'cuda[:N]' that GPU (an error without one)."""
     import onnxruntime as ort
 
     avail = ort.get_available_providers()
+    if device == "cpu":
+        return ["CPUExecutionProvider"]
+    if device.startswith("cuda"):
+        if "CUDAExecutionProvider" not in avail:
+            raise ModelContractError(f"device {device!r}: this onnxruntime build has no CUDA "
+                                     f"provider (it has {avail}); allowed here: auto, cpu")
+        index = int(device.split(":")[1]) if ":" in device else 0
+        return [("CUDAExecutionProvider", {"device_id": index}), "CPUExecutionProvider"]
     return [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in avail]
 
 
-def open_session(path: str | os.PathLike, threads: int = 1, what: str = "model"):
-    """An onnxruntime session for ``path``; a missing or unreadable file names the file."""
+def open_session(path: str | os.PathLike, threads: int = 1, what: str = "model",
+                 device: str = "auto"):
+    """An onnxruntime session for ``path`` on ``device`` (:func:`providers`); a missing or
+    unreadable file names the file."""
     import onnxruntime as ort
 
     path = Path(path)
@@ -127,7 +142,7 @@ def open_session(path: str | os.PathLike, threads: int = 1, what: str = "model")
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3
     try:
-        return ort.InferenceSession(str(path), sess_options=opts, providers=providers())
+        return ort.InferenceSession(str(path), sess_options=opts, providers=providers(device))
     except Exception as exc:  # onnxruntime raises its own exception types for bad files
         raise ModelContractError(f"{path}: not a loadable ONNX {what} ({exc})") from exc
 
@@ -168,11 +183,11 @@ def _resolve_size(path, contract, declared: tuple, configured) -> tuple[int, int
     return None
 
 
-def _open_image_model(path, threads: int, what: str, contract: str, batch):
+def _open_image_model(path, threads: int, what: str, contract: str, batch, device: str):
     """Open an ONNX model with one image input (batch, 3, H, W); ``batch`` is how the
     contract names the batch axis in messages (None = any N). Returns (session, inputs,
     outputs, input shape)."""
-    sess = open_session(path, threads, what)
+    sess = open_session(path, threads, what, device)
     inputs, outputs = sess.get_inputs(), sess.get_outputs()
     n = "N" if batch is None else str(batch)
     if len(inputs) != 1:
@@ -188,7 +203,7 @@ def load_segmenter(spec: SegmenterSpec, threads: int = 1) -> LoadedModel:
     """Open a segmentation model and check it against the MODNet-style contract."""
     contract = "segmentation (MODNet-style)"
     sess, inputs, outputs, ishape = _open_image_model(spec.path, threads, "segmentation model",
-                                                      contract, None)
+                                                      contract, None, spec.device)
     if not 0 <= spec.output_index < len(outputs):
         _fail(spec.path, contract, f"output index {spec.output_index}",
               "an output (N, 1, H, W)", f"{len(outputs)} output(s)")
@@ -216,7 +231,7 @@ def load_keypointer(spec: KeypointSpec, threads: int = 1) -> LoadedModel:
     """Open a keypoint model and check it against the RTMPose/RTMW SimCC contract."""
     contract = "RTMPose/RTMW SimCC keypoint"
     sess, inputs, outputs, ishape = _open_image_model(spec.path, threads, "keypoint model",
-                                                      contract, 1)
+                                                      contract, 1, spec.device)
     size = _resolve_size(spec.path, contract, ishape, spec.input_size)
     if size is None:
         _fail(spec.path, contract, "input size", "static H, W or keypoints.input_size set",

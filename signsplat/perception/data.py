@@ -19,7 +19,7 @@ import numpy as np
 from signsplat.body.joints import NUM_KEYPOINTS
 from signsplat.errors import InputError
 from signsplat.io.tables import read_table
-from signsplat.perception.images import read_mask, read_rgb
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.perception.keypoints import (box_from_mask, box_to_center_scale, crop_matrix,
                                             fix_aspect_ratio, warp_crop)
 

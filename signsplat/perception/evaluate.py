@@ -27,7 +27,7 @@ from signsplat.body.joints import KEYPOINT_PARTS, NUM_KEYPOINTS
 from signsplat.io.tables import read_table, write_table
 from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
                                             load_segmenter)
-from signsplat.perception.images import read_mask, read_rgb
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask, detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
 from signsplat.perception.tables import EVAL_TABLE, MASKS_TABLE  # noqa: F401  (registers)

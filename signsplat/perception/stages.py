@@ -24,7 +24,7 @@ from signsplat.errors import InputError
 from signsplat.io.tables import read_table, write_table
 from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
                                             load_segmenter)
-from signsplat.perception.images import read_rgb, write_mask
+from signsplat.io.images import read_rgb, write_mask
 from signsplat.perception.keypoints import detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
 from signsplat.perception.tables import MASKS_TABLE  # noqa: F401  (registers 'masks')

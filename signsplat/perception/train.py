@@ -4,8 +4,8 @@ Reproducible: scene specs, sample order and augmentation come from fixed seeds; 
 is a number of steps (not wall time). Long runs use one torch thread per model so that the
 segmenter and the keypoint model train side by side on two cores.
 
-- :func:`training_scene_specs`: varied synthetic scenes (shape, appearance, cameras, motion,
-  effects), seeds disjoint from the evaluation scenes.
+- The training scenes are simulated by :mod:`signsplat.synth.training_set` and passed in as
+  folders (``signsplat simulate-training-set``).
 - :func:`train_segmenter` / :func:`train_keypoints`: train a :mod:`~signsplat.perception.nets`
   model on a :class:`~signsplat.perception.data.FrameSet` and export it to ONNX.
 """
@@ -26,8 +26,13 @@ import torch.nn.functional as F
 
 from signsplat.perception import data as D
 from signsplat.perception.contracts import RTM_MEAN, RTM_STD
-from signsplat.perception.nets import (HAND_SLICES, CascadeSimCC, TinySegmenter,
-                                      count_parameters, export_onnx)
+from signsplat.perception.nets import (
+    HAND_SLICES,
+    CascadeSimCC,
+    TinySegmenter,
+    count_parameters,
+    export_onnx,
+)
 
 SEG_MEAN = (127.5, 127.5, 127.5)
 SEG_STD = (127.5, 127.5, 127.5)
@@ -35,123 +40,59 @@ SEG_STD = (127.5, 127.5, 127.5)
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Training knobs of the default detectors (the config's ``perception.train`` section)."""
+    """Training knobs of the default detectors: the config's ``perception.train`` section,
+    whose schema holds every default (build with :meth:`from_dict`)."""
 
-    scenes: int = 20                 # training scenes to simulate
-    seed: int = 0
-    frame_stride: int = 1            # use every n-th frame of each view
-    val_scenes: int = 1              # last scenes held out for the training report
-    seg_steps: int = 600
-    seg_batch: int = 12
-    seg_crop: int = 128              # square training crop (the net is fully convolutional)
-    seg_size: tuple[int, int] = (256, 256)   # export/inference size (H, W)
-    seg_full_steps: int = 500        # phase 2: whole frames at lr / 3
-    seg_full_batch: int = 6
-    seg_background_rate: float = 0.5  # phase 2: share of frames on a replaced backdrop
-    kp_steps: int = 800
-    kp_batch: int = 24
-    kp_input: tuple[int, int] = (256, 192)   # crop (H, W); the coarse stage sees it pooled 2x
-    kp_sigma: float = 1.25           # Gaussian sigma in coarse heatmap cells
-    kp_coarse_widths: tuple[int, ...] = (16, 24, 48, 96, 128)  # coarse encoder channels
-    kp_coarse_head: int = 64         # coarse decoder channels
-    kp_coarse_stride: int = 4        # coarse heatmap stride of the pooled crop (2 or 4)
-    kp_hand_passes: int = 1          # hand network passes (later ones re-centred), inference
-    kp_wrist_min_prob: float | None = None  # body wrists from the hand roots above this
-    hand_size: int = 64              # hand crop resampled to hand_size x hand_size pixels
-    hand_frac: float = 0.28          # hand crop side as a fraction of the crop height
-    hand_jitter: float = 5.0         # hand-centre jitter in training (pixels at 256 rows)
-    hand_sigma: float = 1.25         # Gaussian sigma in hand heatmap cells (stride 4)
-    kp_finetune_steps: int = 800     # phase 2 at lr / 3
-    kp_finetune_pred_centers: float = 0.5  # phase 2: share of hand crops at the coarse centres
-    kp_hand_steps: int = 0           # phase 3: the hand network alone (coarse stage frozen)
-    kp_hand_lr: float = 1e-3         # phase 3 learning rate (warm-up + cosine)
-    kp_hand_right_weight: float = 1.0  # phase 3: right-hand loss weight (left hand 1)
-    checkpoint_every: int = 200      # save a PyTorch checkpoint (out_path + '.pt') this often
-    lr: float = 3e-3
-    weight_decay: float = 1e-4
-    threads: int = 1                 # torch threads per model
-    max_minutes: float | None = None  # wall-clock cap per model (None: run all steps; with a
+    scenes: int  # training scenes to simulate
+    seed: int
+    frame_stride: int  # use every n-th frame of each view
+    val_scenes: int  # last scenes held out for the training report
+    seg_steps: int
+    seg_batch: int
+    seg_crop: int  # square training crop (the net is fully convolutional)
+    seg_size: tuple[int, int]  # export/inference size (H, W)
+    seg_full_steps: int  # phase 2: whole frames at lr / 3
+    seg_full_batch: int
+    seg_background_rate: float  # phase 2: share of frames on a replaced backdrop
+    kp_steps: int
+    kp_batch: int
+    kp_input: tuple[int, int]  # crop (H, W); the coarse stage sees it pooled 2x
+    kp_sigma: float  # Gaussian sigma in coarse heatmap cells
+    kp_coarse_widths: tuple[int, ...]  # coarse encoder channels
+    kp_coarse_head: int  # coarse decoder channels
+    kp_coarse_stride: int  # coarse heatmap stride of the pooled crop (2 or 4)
+    kp_hand_passes: int  # hand network passes (later ones re-centred), inference
+    kp_wrist_min_prob: float | None  # body wrists from the hand roots above this
+    hand_size: int  # hand crop resampled to hand_size x hand_size pixels
+    hand_frac: float  # hand crop side as a fraction of the crop height
+    hand_jitter: float  # hand-centre jitter in training (pixels at 256 rows)
+    hand_sigma: float  # Gaussian sigma in hand heatmap cells (stride 4)
+    kp_finetune_steps: int  # phase 2 at lr / 3
+    kp_finetune_pred_centers: float  # phase 2: share of hand crops at the coarse centres
+    kp_hand_steps: int  # phase 3: the hand network alone (coarse stage frozen)
+    kp_hand_lr: float  # phase 3 learning rate (warm-up + cosine)
+    kp_hand_right_weight: float  # phase 3: right-hand loss weight (left hand 1)
+    checkpoint_every: int  # save a PyTorch checkpoint (out_path + '.pt') this often
+    lr: float
+    weight_decay: float
+    threads: int  # torch threads per model
+    max_minutes: float | None  # wall-clock cap per model (None: run all steps; with a
     # cap, the learning-rate schedule follows max(step, time) progress and training stops at
     # the cap, so results then depend on the machine's speed; the card records the steps run)
-    seg_max_minutes: float | None = None  # per-model caps overriding max_minutes when set
-    kp_max_minutes: float | None = None
+    seg_max_minutes: float | None  # per-model caps overriding max_minutes when set
+    kp_max_minutes: float | None
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "TrainConfig":
-        d = dict(d or {})
+        """From a ``perception.train`` section; missing keys get the schema's defaults."""
+        from signsplat.config import validate
+
+        d = validate({"train": dict(d or {})}, "stages/perception.schema.yaml",
+                     "perception.train")["train"]
         for key in ("seg_size", "kp_input", "kp_coarse_widths"):
             if key in d:
                 d[key] = tuple(d[key])
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
-
-
-def training_scene_specs(count: int, seed: int, glosses: list[str],
-                         letters: list[str] | tuple = ()) -> list[dict]:
-    """``count`` scene specs (scene schema) drawn from a seeded generator.
-
-    Seeds, signer shapes and appearance seeds start at 1000 (the evaluation scenes in
-    config/scenes use small seeds and their own appearance seeds). The cameras vary around the
-    simulator's framing (upper body, 30 degree field of view at 2 m): count, arc, distance,
-    height, target and field of view; signs are mixed with fingerspelled letters (about half
-    the scenes spell 2-4 ``letters`` between signs, for the many hand shapes); lighting
-    (direction, ambient, intensity, colour), background, sensor noise, motion blur, occluders
-    and camera jitter are drawn from the simulator's effect registry.
-    """
-    rng = np.random.default_rng(10_000 + seed)
-    specs = []
-    for i in range(count):
-        n_gloss = int(rng.integers(2, 5))
-        chosen = [str(g) for g in rng.choice(glosses, size=min(n_gloss, len(glosses)),
-                                             replace=False)]
-        if letters and rng.random() < 0.5:
-            spelled = [str(c) for c in rng.choice(list(letters), size=int(rng.integers(2, 5)))]
-            at = int(rng.integers(0, len(chosen) + 1))
-            chosen = chosen[:at] + spelled + chosen[at:]
-        ring = rng.random() < 0.1
-        light = {"direction": [round(float(v), 3) for v in
-                               (rng.uniform(-0.8, 0.8), rng.uniform(0.0, 1.0),
-                                rng.uniform(0.4, 1.0))],
-                 "ambient": round(float(rng.uniform(0.2, 0.5)), 3),
-                 "intensity": round(float(rng.uniform(0.5, 1.0)), 3),
-                 "color": [round(float(v), 3) for v in rng.uniform(0.85, 1.15, 3)]}
-        effects: list = [{"lighting": light}]
-        if rng.random() < 0.5:
-            effects.append({"background": {"kind": "solid",
-                                           "color": [round(float(c), 3)
-                                                     for c in rng.uniform(0.05, 0.95, 3)]}})
-        else:
-            effects.append({"background": {"kind": "textured", "seed": int(1000 + i)}})
-        if rng.random() < 0.6:
-            effects.append({"sensor_noise": {"sigma": round(float(rng.uniform(0.003, 0.03)), 4)}})
-        for name, p in (("motion_blur", 0.3), ("occluder", 0.25), ("camera_jitter", 0.3)):
-            if rng.random() < p:
-                effects.append(name)
-        specs.append({
-            "name": f"train{i:03d}",
-            "seed": int(1000 + i),
-            "fps": 25,
-            "max_frames": 50,
-            "cameras": {
-                "count": int(rng.integers(2, 4)),
-                "layout": "ring" if ring else "arc",
-                "arc_degrees": round(float(rng.uniform(30, 170)), 1),
-                "distance": round(float(rng.uniform(1.75, 2.3)), 3),
-                "height": round(float(rng.uniform(1.25, 1.45)), 3),
-                "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
-                           round(float(rng.uniform(1.25, 1.4)), 3), 0.0],
-                "width": 256,
-                "height_px": 256,
-                "fov_degrees": round(float(rng.uniform(26, 36)), 1),
-            },
-            "signer": {
-                "betas": [round(float(b), 3) for b in rng.normal(0, 0.8, 10)],
-                "appearance_seed": int(1000 + i),
-                "expression_scale": round(float(rng.uniform(0.5, 1.5)), 2),
-            },
-            "motion": {"glosses": chosen, "hold_frames": int(rng.integers(0, 4))},
-            "effects": effects,
-        })
-    return specs
 
 
 def _progress(step: int, total: int, t0: float, max_minutes: float | None) -> float:
@@ -220,8 +161,10 @@ def _segmenter_phase(net, opt, train: D.FrameSet, cfg: TrainConfig, crop: int, b
 
 
 def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
-                    log=None, resume: str | os.PathLike | None = None) -> dict:
-    """Train :class:`TinySegmenter` and export it to ONNX.
+                    log=None, resume: str | os.PathLike | None = None,
+                    export: bool = True) -> dict:
+    """Train :class:`TinySegmenter` and export it to ONNX (``export=False``: only the state
+    dicts beside ``out_path``).
 
     Phase 1: ``seg_steps`` steps on ``seg_crop`` windows (many samples per second). Phase 2:
     ``seg_full_steps`` steps on whole frames (``seg_size``, batch ``seg_full_batch``) at a
@@ -256,7 +199,8 @@ def train_segmenter(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
         cfg.seg_background_rate)
     seconds = time.perf_counter() - t0
     torch.save(net.state_dict(), str(out_path) + ".pt")
-    export_onnx(net, out_path, cfg.seg_size, ["alpha"])
+    if export:
+        export_onnx(net, out_path, cfg.seg_size, ["alpha"])
     losses = losses1 + losses2
     step = steps1 + steps2
     return {"model": "segmenter", "parameters": count_parameters(net), "steps": step,
@@ -393,8 +337,9 @@ def keypoint_net(cfg: TrainConfig) -> CascadeSimCC:
 
 def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
                     log=None, resume: str | os.PathLike | None = None,
-                    resume_phase: int = 1) -> dict:
-    """Train :class:`CascadeSimCC` and export it to ONNX.
+                    resume_phase: int = 1, export: bool = True) -> dict:
+    """Train :class:`CascadeSimCC` and export it to ONNX (``export=False``: only the state
+    dicts beside ``out_path``).
 
     Each step draws ``kp_batch`` augmented person crops at ``kp_input``; the coarse stage
     learns all 133 heatmaps (stride 8 of the crop) and the hand stage learns its 21 heatmaps
@@ -456,7 +401,8 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
         phase_seconds[2] = time.perf_counter() - t
     seconds = time.perf_counter() - t0
     torch.save(net.state_dict(), str(out_path) + ".pt")
-    export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"], atol=2e-3)
+    if export:
+        export_onnx(net, out_path, hw, ["simcc_x", "simcc_y"], atol=2e-3)
     all_losses = losses[0] + losses[1] + losses[2]
     return {"model": "keypoints", "parameters": count_parameters(net), "steps": sum(steps),
             "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),

@@ -19,16 +19,6 @@ we register a cache locator that is keyed by *content* instead:
 
 from __future__ import annotations
 
-import os as _os
-
-# Numba's OpenMP pool: GNU OpenMP spins for a long time at the end of each parallel region by
-# default. On a machine shared with other processes (the norm here: 2 cores, several jobs) a
-# spinning thread keeps the core its partner needs, and 2 threads ran 2-3x slower than 1.
-# A short spin keeps the fast hand-over between our back-to-back kernels on an idle machine.
-# Takes effect if set before Numba starts its pool; the user's own setting wins.
-if "OMP_WAIT_POLICY" not in _os.environ and "GOMP_SPINCOUNT" not in _os.environ:
-    _os.environ["GOMP_SPINCOUNT"] = "10000"
-
 import hashlib
 import os
 import shutil

@@ -5,8 +5,7 @@ full-page screenshot.
 Chromium is driven through the DevTools protocol over a pipe (``--remote-debugging-pipe``:
 JSON messages, NUL-terminated, on file descriptors 3 and 4), so no websocket client, no
 network port and no browser download are involved. :func:`find_chromium` finds the Debian
-``chromium`` binary; :func:`ensure_chromium` installs the package with apt-get when it is
-missing and the process is root (idempotent).
+``chromium`` binary (``make chromium`` installs it; nothing here installs anything).
 """
 
 from __future__ import annotations
@@ -48,30 +47,6 @@ def find_chromium() -> str | None:
         if c and os.path.isfile(c) and os.access(c, os.X_OK):
             return c
     return None
-
-
-def ensure_chromium(install: bool = True, timeout: float = 900) -> tuple[str | None, str]:
-    """``(path, reason)``: the Chromium binary, installing Debian ``chromium`` with apt-get
-    when it is missing, ``install`` is true and we are root. ``reason`` says why it is None."""
-    path = find_chromium()
-    if path:
-        return path, ""
-    if not install:
-        return None, "chromium is not installed (apt-get install -y chromium)"
-    if os.geteuid() != 0:
-        return None, "chromium is not installed and this user is not root (cannot apt-get)"
-    if not shutil.which("apt-get"):
-        return None, "chromium is not installed and apt-get is not available"
-    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-    for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium"]):
-        try:
-            done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            return None, f"{' '.join(cmd)} failed: {exc}"
-        if done.returncode:
-            return None, f"{' '.join(cmd)} failed: {done.stderr.strip()[-300:]}"
-    path = find_chromium()
-    return path, "" if path else "apt-get installed chromium but no binary was found"
 
 
 @dataclass

@@ -2,9 +2,12 @@
 
 - ``signsplat report [html] --results results --out reports/index.html`` writes the report
   (assets in ``reports/assets/``); stages that did not run get a section saying so.
-- ``signsplat report ablations --results R --scene S --variants-json '{"full": "abl_full"}'
-  --out R/S/ablations.parquet`` (a label may also map to ``{"variant": ..., "regularize":
-  true, "densify": true, "accumulate": true, "pose_dependent": true}``)
+- ``signsplat report ablations --results R --scene S --variants-json '[{"label": "full",
+  "iterations": 300, "variant": "abl_full_i300", "regularize": true, ...}, ...]'
+  --out R/S/ablations.parquet``
+- ``signsplat report regularizer --results R --scene S --variants-json '[{"scale": 0.3,
+  "iterations": 300, "variant": "abl_reg0p3_i300"}, ...]' --out R/S/regularizer.parquet
+  --plot R/S/regularizer.png``
 - ``signsplat report sweep --results R --scene S --settings-json '{"sw_it150": {...}}'
   --out R/S/sweep.parquet --plot R/S/sweep.png --demo demo``
 """
@@ -37,28 +40,55 @@ def _html(argv: list[str]) -> int:
     return 0
 
 
+def _write(df, a, table: str) -> None:
+    """A study table to ``--out`` (Parquet) and ``--tsv`` when given, and on the console."""
+    from signsplat.report.runs import write_parquet, write_tsv
+
+    write_parquet(df, Path(a.out), table)
+    if a.tsv:
+        write_tsv(df, Path(a.tsv))
+    print(df.to_string(index=False))
+
+
 def _ablations(argv: list[str]) -> int:
-    from signsplat.report.runs import ablation_table, ssim_finding, write_parquet, write_tsv
+    from signsplat.report.runs import ablation_table, ssim_finding
 
     p = argparse.ArgumentParser(prog="signsplat report ablations")
     p.add_argument("--results", required=True)
     p.add_argument("--scene", required=True)
-    p.add_argument("--variants-json", required=True, help='{"label": "avatar variant", ...}')
+    p.add_argument("--variants-json", required=True,
+                   help='[{"label": ..., "iterations": ..., "variant": ..., switches}, ...]')
     p.add_argument("--out", required=True)
     p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
-    write_parquet(df, Path(a.out), "ablations")
-    if a.tsv:
-        write_tsv(df, Path(a.tsv))
-    print(df.to_string(index=False))
+    _write(df, a, "ablations")
     print(ssim_finding(df))
+    return 0
+
+
+def _regularizer(argv: list[str]) -> int:
+    from signsplat.report.plots import regularizer_tradeoff
+    from signsplat.report.runs import regularizer_table
+
+    p = argparse.ArgumentParser(prog="signsplat report regularizer")
+    p.add_argument("--results", required=True)
+    p.add_argument("--scene", required=True)
+    p.add_argument("--variants-json", required=True,
+                   help='[{"scale": ..., "iterations": ..., "variant": ...}, ...]')
+    p.add_argument("--out", required=True)
+    p.add_argument("--plot", required=True)
+    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
+    a = p.parse_args(argv)
+    df = regularizer_table(Path(a.results), a.scene, json.loads(a.variants_json))
+    _write(df, a, "regularizer_sweep")
+    regularizer_tradeoff(df, Path(a.plot), title=a.scene)
     return 0
 
 
 def _sweep(argv: list[str]) -> int:
     from signsplat.report.plots import accuracy_vs_time
-    from signsplat.report.runs import sweep_table, write_parquet, write_tsv
+    from signsplat.report.runs import sweep_table
 
     p = argparse.ArgumentParser(prog="signsplat report sweep")
     p.add_argument("--results", required=True)
@@ -72,16 +102,14 @@ def _sweep(argv: list[str]) -> int:
     p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
     a = p.parse_args(argv)
     df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
-    write_parquet(df, Path(a.out), "sweep")
-    if a.tsv:
-        write_tsv(df, Path(a.tsv))
+    _write(df, a, "sweep")
     accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)
-    print(df.to_string(index=False))
     return 0
 
 
 def report(argv: list[str]) -> int:
-    commands = {"html": _html, "ablations": _ablations, "sweep": _sweep}
+    commands = {"html": _html, "ablations": _ablations, "regularizer": _regularizer,
+                "sweep": _sweep}
     if argv and argv[0] in commands:
         return commands[argv[0]](argv[1:])
     return _html(argv)

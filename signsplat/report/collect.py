@@ -48,6 +48,7 @@ class SceneTables:
     keypoints_2d: Path | None = None  # ground-truth or detected keypoints (close-up crops)
     cameras: pd.DataFrame | None = None
     ablations: pd.DataFrame | None = None
+    regularizer: pd.DataFrame | None = None
     sweep: pd.DataFrame | None = None
 
 
@@ -122,6 +123,7 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
             t.keypoints_2d = kp
             break
     t.ablations = read_parquet(scene_dir / "ablations.parquet")
+    t.regularizer = read_parquet(scene_dir / "regularizer.parquet")
     t.sweep = read_parquet(scene_dir / "sweep.parquet")
     return t
 

@@ -88,6 +88,34 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
     return _save(fig, path)
 
 
+def regularizer_tradeoff(df: pd.DataFrame, path: Path, title: str = "") -> Path:
+    """The regulariser's weight sweep: novel-view PSNR against novel-pose PSNR, one line per
+    training budget through its scales (labelled), and PSNR of each split against the scale."""
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10.4, 4))
+    wide = df.pivot_table(index=["iterations", "scale"], columns="split", values="psnr")
+    for iters, g in wide.groupby(level="iterations"):
+        g = g.droplevel("iterations").sort_index()
+        if {"novel_pose", "novel_view"} <= set(g.columns):
+            ax.plot(g["novel_pose"], g["novel_view"], marker="o", label=f"{iters} steps")
+            for scale, r in g.iterrows():
+                ax.annotate(f"x{scale:g}", (r["novel_pose"], r["novel_view"]), fontsize=7,
+                            xytext=(3, 3), textcoords="offset points")
+        for split in g.columns:
+            bx.plot(g.index, g[split], marker="o", label=f"{split}, {iters} steps")
+    ax.set_xlabel("novel-pose PSNR (dB)")
+    ax.set_ylabel("novel-view PSNR (dB)")
+    ax.set_title("trade-off (label: weight scale)")
+    bx.set_xlabel("regulariser weight scale (0 = off)")
+    bx.set_ylabel("PSNR (dB)")
+    for a in (ax, bx):
+        a.grid(alpha=0.3)
+        if a.lines:
+            a.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
 def rule_times(bench: pd.DataFrame, path: Path, top: int = 30) -> Path:
     """Horizontal bars: seconds per benchmarked job (scene/job), longest first."""
     d = bench.sort_values("seconds", ascending=False).head(top)

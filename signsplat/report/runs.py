@@ -13,8 +13,8 @@ from signsplat.io.tables import Table, register_table, write_table
 from signsplat.report.collect import read_benchmarks, read_parquet
 
 _SCORES = {
-    "psnr": "float64 dB, full image, held-out frames (novel pose), background replaced, "
-            "no test-time refinement",
+    "psnr": "float64 dB, full image, background replaced, no test-time refinement (held-out "
+            "frames, novel pose, unless the table has a split column)",
     "ssim": "float64 same images as psnr",
     "hand_psnr": "float64 dB, mean of the left- and right-hand crop PSNR, same images",
     "train_seconds": "float64 wall-clock seconds of train_avatar (Snakemake benchmark file; "
@@ -25,14 +25,30 @@ _SCORES = {
 }
 ABLATIONS_TABLE = register_table(Table(
     "ablations",
-    "One row per ablation variant of a sequence (paper Table 5), same split and seed. A column "
-    "lpips (float64, full image) is present only when LPIPS was computed for some variant.",
+    "One row per (ablation variant, training budget, split) of a sequence (paper Table 5), "
+    "same frames, cameras and seed for every variant. A column lpips (float64, full image) is "
+    "present only when LPIPS was computed for some variant.",
     {"variant": "str row label (full, w/o regularisation, ...)",
+     "iterations": "int64 training steps (the study's budget)",
+     "split": "str novel_pose (held-out frames, training cameras) | novel_view (training "
+              "frames, held-out cameras) | novel_pose_view (both held out)",
+     "test_views": "str the held-out cameras, comma-separated ('' = none)",
      "avatar_variant": "str the avatar variant trained (results/{scene}/avatar/{variant})",
      "regularize": "bool neighbourhood variance regularisation on",
      "densify": "bool adaptive density control on",
      "accumulate": "bool loss accumulation over poses on",
      "pose_dependent": "bool pose-dependent networks on (off = static mesh-anchored)",
+     **_SCORES},
+    extra_columns=True,
+))
+REGULARIZER_TABLE = register_table(Table(
+    "regularizer_sweep",
+    "The full model with the regulariser's variance weights scaled (0 = off), one row per "
+    "(scale, training budget, split) of the ablation sequence.",
+    {"scale": "float64 factor on regularize.w_scale, w_rotation, w_opacity, w_color, w_sh_rest",
+     "iterations": "int64 training steps",
+     "split": "str as in the ablations table",
+     "avatar_variant": "str the avatar variant trained",
      **_SCORES},
     extra_columns=True,
 ))
@@ -72,9 +88,18 @@ def image_scores(metrics: pd.DataFrame, split: str = "novel_pose") -> dict[str, 
             "hand_psnr": value(["left_hand", "right_hand"], "psnr")}
 
 
-def variant_row(results: Path, scene: str, variant: str,
-                bench: pd.DataFrame | None = None) -> dict:
-    """Quality, seconds and final point count of one trained and evaluated variant."""
+SPLITS = ("novel_pose", "novel_view", "novel_pose_view")
+
+
+def _benchmark_seconds(bench: pd.DataFrame, scene: str, job: str) -> float:
+    sel = bench[(bench["job"] == job) & (bench["scene"] == scene)]
+    return float(sel["seconds"].iloc[0]) if len(sel) else float("nan")
+
+
+def variant_rows(results: Path, scene: str, variant: str, bench: pd.DataFrame | None = None,
+                 splits: tuple[str, ...] = ("novel_pose",)) -> list[dict]:
+    """Quality per split (those the evaluation scored), seconds and final point count of one
+    trained and evaluated variant."""
     results = Path(results)
     if bench is None:
         bench = read_benchmarks(results / "_benchmarks")
@@ -84,53 +109,106 @@ def variant_row(results: Path, scene: str, variant: str,
         raise FileNotFoundError(f"{path}: metrics of avatar variant {variant!r} not found "
                                 "(train and evaluate it first)")
     log = read_parquet(results / scene / "avatar" / variant / "train_log.parquet")
+    common = {"scene": scene, "variant": variant,
+              "train_seconds": _benchmark_seconds(bench, scene, f"train_avatar_{variant}"),
+              "eval_seconds": _benchmark_seconds(bench, scene, f"evaluate_{variant}"),
+              "points": int(log["num_points"].iloc[-1]) if log is not None and len(log) else -1,
+              "smplx_source": str(metrics["smplx_source"].iloc[0])
+              if "smplx_source" in metrics and len(metrics) else "",
+              "test_views": _test_views(metrics)}
+    return [{**common, "split": split, **image_scores(metrics, split)} for split in splits
+            if split in set(metrics["split"])]
 
-    def secs(job):
-        sel = bench[(bench["job"] == job) & (bench["scene"] == scene)]
-        return float(sel["seconds"].iloc[0]) if len(sel) else float("nan")
 
-    return {"scene": scene, "variant": variant, **image_scores(metrics),
-            "train_seconds": secs(f"train_avatar_{variant}"),
-            "eval_seconds": secs(f"evaluate_{variant}"),
-            "points": int(log["num_points"].iloc[-1]) if log is not None and len(log) else -1,
-            "smplx_source": str(metrics["smplx_source"].iloc[0])
-            if "smplx_source" in metrics and len(metrics) else ""}
+def _test_views(metrics: pd.DataFrame) -> str:
+    """The held-out cameras of an evaluation, from its split rule ('... test views: [1, 3]')."""
+    if "split_rule" not in metrics or not len(metrics):
+        return ""
+    rule = str(metrics["split_rule"].iloc[0])
+    return rule.split("test views:")[-1].strip(" []").replace(" ", "") \
+        if "test views:" in rule else ""
+
+
+def variant_row(results: Path, scene: str, variant: str,
+                bench: pd.DataFrame | None = None) -> dict:
+    """The novel-pose scores, seconds and final point count of one variant."""
+    rows = variant_rows(results, scene, variant, bench)
+    if not rows:
+        raise ValueError(f"avatar variant {variant!r} of {scene!r} has no novel_pose scores")
+    return rows[0]
 
 
 def _drop_missing_lpips(df: pd.DataFrame) -> pd.DataFrame:
     return df.drop(columns=["lpips"]) if df["lpips"].isna().all() else df
 
 
-def ablation_table(results: Path, scene: str, variants: dict[str, str | dict]) -> pd.DataFrame:
-    """``variants``: row label (e.g. 'w/o regularisation') -> the avatar variant name, or a dict
-    with ``variant`` and the switch columns (regularize, densify, accumulate, pose_dependent).
-    One row per label, in the given order."""
+def ablation_table(results: Path, scene: str, rows: list[dict]) -> pd.DataFrame:
+    """``rows``: the study's rows in order, each ``{"label", "iterations", "variant"}`` and the
+    switch columns (regularize, densify, accumulate, pose_dependent;
+    :func:`signsplat.report.variants.ablation_columns`). One table row per (row, split
+    scored)."""
     bench = read_benchmarks(Path(results) / "_benchmarks")
-    rows = []
-    for label, spec in variants.items():
-        spec = {"variant": spec} if isinstance(spec, str) else dict(spec)
-        r = variant_row(results, scene, spec["variant"], bench)
+    out = []
+    for spec in rows:
         switches = {k: spec.get(k) for k in ("regularize", "densify", "accumulate",
                                              "pose_dependent")}
-        rows.append({**r, **switches, "variant": label, "avatar_variant": spec["variant"]})
-    cols = ["variant", "avatar_variant", "regularize", "densify", "accumulate",
-            "pose_dependent", "smplx_source", "psnr", "ssim", "lpips", "hand_psnr",
-            "train_seconds", "eval_seconds", "points"]
-    return _drop_missing_lpips(pd.DataFrame(rows, columns=cols))
+        for r in variant_rows(results, scene, spec["variant"], bench, SPLITS):
+            out.append({**r, **switches, "variant": spec["label"],
+                        "iterations": int(spec["iterations"]), "avatar_variant": spec["variant"]})
+    cols = ["variant", "iterations", "split", "test_views", "avatar_variant", "regularize",
+            "densify", "accumulate", "pose_dependent", "smplx_source", "psnr", "ssim", "lpips",
+            "hand_psnr", "train_seconds", "eval_seconds", "points"]
+    return _drop_missing_lpips(pd.DataFrame(out, columns=cols))
+
+
+def regularizer_table(results: Path, scene: str, rows: list[dict]) -> pd.DataFrame:
+    """``rows``: ``{"scale", "iterations", "variant"}`` of the regulariser's weight sweep; one
+    table row per (row, split scored)."""
+    bench = read_benchmarks(Path(results) / "_benchmarks")
+    out = [{**r, "scale": float(spec["scale"]), "iterations": int(spec["iterations"]),
+            "avatar_variant": spec["variant"]}
+           for spec in rows for r in variant_rows(results, scene, spec["variant"], bench, SPLITS)]
+    cols = ["scale", "iterations", "split", "avatar_variant", "smplx_source", "psnr", "ssim",
+            "lpips", "hand_psnr", "train_seconds", "eval_seconds", "points"]
+    return _drop_missing_lpips(pd.DataFrame(out, columns=cols))
+
+
+def winners(df: pd.DataFrame, full: str = "full") -> pd.DataFrame:
+    """Per (budget, split) of an ablations table: the best variant on PSNR and on SSIM, the
+    full model's scores and its margin to the best other variant (negative: beaten)."""
+    out = []
+    for (iters, split), g in df.groupby(["iterations", "split"], sort=True):
+        row = {"iterations": int(iters), "split": split}
+        for metric in ("psnr", "ssim"):
+            best = g.loc[g[metric].idxmax()] if g[metric].notna().any() else None
+            f = g[g["variant"] == full][metric]
+            others = g[g["variant"] != full][metric]
+            row[f"best_{metric}"] = "" if best is None else str(best["variant"])
+            row[f"full_{metric}"] = float(f.iloc[0]) if len(f) else float("nan")
+            row[f"full_margin_{metric}"] = (float(f.iloc[0]) - float(others.max())
+                                            if len(f) and others.notna().any() else float("nan"))
+        out.append(row)
+    return pd.DataFrame(out)
 
 
 def ssim_finding(df: pd.DataFrame, full: str = "full") -> str:
-    """One sentence: is the full model best on SSIM (the paper's finding), and if not, which
-    variants beat it and by how much."""
+    """Sentences: per budget and split, is the full model best on SSIM (the paper's finding)
+    and on PSNR, and if not, which variant beats it and by how much."""
     if df is None or full not in set(df["variant"]) or df["ssim"].isna().all():
         return "no full-model row with SSIM: the paper's finding cannot be checked"
-    d = df.set_index("variant")
-    best = float(d.loc[full, "ssim"])
-    better = d[(d["ssim"] > best) & (d.index != full)]["ssim"].sort_values(ascending=False)
-    if not len(better):
-        return f"the full model is best on SSIM ({best:.4f}), as in the paper"
-    names = ", ".join(f"{k} {v:.4f} (+{v - best:.4f})" for k, v in better.items())
-    return f"the full model ({best:.4f}) is NOT best on SSIM: beaten by {names}"
+    lines = []
+    for _, w in winners(df, full).iterrows():
+        parts = []
+        for metric, fmt in (("ssim", ".4f"), ("psnr", ".2f")):
+            margin = w[f"full_margin_{metric}"]
+            if w[f"best_{metric}"] == full:
+                parts.append(f"the full model is best on {metric.upper()} "
+                             f"({w[f'full_{metric}']:{fmt}}, {margin:+{fmt}} over the next)")
+            elif w[f"best_{metric}"]:
+                parts.append(f"{w[f'best_{metric}']} beats the full model on {metric.upper()} "
+                             f"by {-margin:{fmt}}")
+        lines.append(f"{w['split']} at {w['iterations']} steps: " + "; ".join(parts))
+    return ". ".join(lines)
 
 
 def sweep_table(results: Path, scene: str, settings: dict[str, dict]) -> pd.DataFrame:

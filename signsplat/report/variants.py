@@ -66,11 +66,44 @@ def ablation_plan(base: dict, base_source: str, with_source: bool = True) -> lis
     return rows
 
 
+#: The regulariser's variance weights (one per Gaussian parameter it acts on).
+REGULARIZER_WEIGHTS = ("w_scale", "w_rotation", "w_opacity", "w_color", "w_sh_rest")
+
+
+def regularizer_plan(full: dict, scales: list[float], resolved_full: dict
+                     ) -> list[tuple[float, dict]]:
+    """The full model's overrides with the regulariser's variance weights times each scale
+    (``resolved_full``: the full model's resolved config, whose weights are scaled; 0 = the
+    regulariser off): ``[(scale, overrides), ...]``."""
+    weights = resolved_full["regularize"]
+    out = []
+    for scale in scales:
+        reg = {"enabled": scale > 0}
+        if scale > 0:
+            reg.update({w: float(weights[w]) * scale for w in REGULARIZER_WEIGHTS})
+        out.append((float(scale), deep_merge(full, {"regularize": reg})))
+    return out
+
+
 def switch_values(resolved: dict) -> dict:
     """The switch columns (regularize, densify, accumulate, pose_dependent, smplx_source) of a
     resolved avatar config."""
     out = {k: bool(_get(resolved, p)) for k, p in SWITCH_FIELDS.items()}
     out["smplx_source"] = resolved["train"]["smplx_source"]
+    return out
+
+
+def ablation_columns(rows: list[dict], variants: dict[str, dict]) -> list[dict]:
+    """The rows of ``ablations.parquet`` before scoring: label, budget, variant and switch
+    columns, from the plan's rows (``{"label", "iterations", "variant"}``) and the resolved
+    configs ``{name: avatar section}``. The SMPL-X source is not among them: the table reads
+    what each variant trained on from its metrics."""
+    out = []
+    for row in rows:
+        switches = switch_values(variants[row["variant"]])
+        switches.pop("smplx_source")
+        out.append({"label": row["label"], "iterations": row["iterations"],
+                    "variant": row["variant"], **switches})
     return out
 
 

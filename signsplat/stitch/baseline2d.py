@@ -26,8 +26,14 @@ import numpy as np
 import torch
 
 from signsplat.body import joints as JN
-from signsplat.stitch.motion import TRANSITION, Frame, ease_in_out
-from signsplat.stitch.render import Camera, Identity, RenderStats, batch_params, batched
+from signsplat.motion.stitching import TRANSITION, Frame, ease_in_out
+from signsplat.stitch.animate import (
+    Camera,
+    Identity,
+    RenderStats,
+    batch_params,
+    batched,
+)
 
 
 def _hand_bones(offset: int) -> list[tuple[int, int]]:

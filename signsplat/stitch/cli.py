@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import re
 import logging
+import re
 import time
 from pathlib import Path
 
@@ -36,8 +36,8 @@ def _slug(sentence: str) -> str:
 
 def load_libraries(paths: list[str], body: str | None = None) -> dict:
     """Load and merge gloss libraries (later paths win), converted to 'flat' hands."""
+    from signsplat.motion.clips import load_gloss_library
     from signsplat.stitch.library import hands_mean, merge_libraries
-    from signsplat.synth.glosses import load_gloss_library
 
     libs = [load_gloss_library(p) for p in paths]
     means = hands_mean(body) if body else None
@@ -71,8 +71,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-baseline", action="store_true", help="skip the 2D baseline video")
     parser.add_argument("--eval", default=None,
                         help="stitch_eval table path (default OUT/stitch_eval.parquet)")
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--threads", type=int, default=2)
+    from signsplat.device import add_runtime_args
+
+    add_runtime_args(parser)
     return parser
 
 
@@ -81,7 +82,11 @@ def sign(argv: list[str]) -> int:
     [--avatar CKPT --body NPZ [--cameras CAMERAS]]``."""
     args = _parser().parse_args(argv)
 
-    from signsplat.stitch.motion import StitchConfig, stitch_frames, write_stitched_table
+    from signsplat.motion.stitching import (
+        StitchConfig,
+        stitch_frames,
+        write_stitched_table,
+    )
     from signsplat.stitch.text import load_pipeline, load_rules, sentence_to_glosses
 
     try:
@@ -145,13 +150,15 @@ class _VideoStage:
 
         from signsplat.body.keypoints import WholeBodyRegressor
         from signsplat.body.model import BodyModel
-        from signsplat.device import select_device
-        from signsplat.device import set_threads
-        from signsplat.stitch.render import AvatarRenderer, choose_camera, upper_body_points
+        from signsplat.device import use_runtime
+        from signsplat.stitch.animate import (
+            AvatarRenderer,
+            choose_camera,
+            upper_body_points,
+        )
 
         logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-        set_threads(args.threads)
-        device = select_device(args.device)
+        device = use_runtime(args)
         body = BodyModel.from_file(args.body).to(device)
         background = cfg.get("background")
         self.renderer = AvatarRenderer.from_checkpoint(
@@ -172,10 +179,10 @@ class _VideoStage:
     def run(self, clips, config, rate, out: Path, name: str, sentence: str):
         """Render one sentence's videos; returns its ``stitch_eval`` rows."""
         from signsplat.io.video import VideoWriter
+        from signsplat.motion.stitching import stitch_clips, stitch_frames
+        from signsplat.stitch.animate import render_track
         from signsplat.stitch.baseline2d import METRIC_BONES, render_baseline
         from signsplat.stitch.evaluate import BoneStats, StitchObserver, sentence_eval
-        from signsplat.stitch.motion import stitch_clips, stitch_frames
-        from signsplat.stitch.render import render_track
 
         fps = float(self.cfg["fps"] or rate or 25.0)
         observer = StitchObserver(self.regressor, self.camera)

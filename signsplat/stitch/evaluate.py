@@ -120,7 +120,7 @@ class BoneStats:
 
 
 class StitchObserver:
-    """``on_batch`` callback of :func:`signsplat.stitch.render.render_track`: accumulates the
+    """``on_batch`` callback of :func:`signsplat.stitch.animate.render_track`: accumulates the
     3D bone lengths of the posed joints and the 2D bone lengths of the projected keypoints."""
 
     def __init__(self, regressor=None, camera=None):
@@ -153,12 +153,12 @@ def sentence_eval(scene: str, sentence: str, track: dict, fps: float,
     """The ``stitch_eval`` rows of one sentence.
 
     Args:
-        track: :func:`~signsplat.stitch.motion.stitch_clips` output of the sentence.
+        track: :func:`~signsplat.motion.stitching.stitch_clips` output of the sentence.
         fps: frame rate of the track.
         bones_3d / bones_projected / bones_2d: :class:`BoneStats` of the 3D skeleton
             (:data:`POSE_BONES`), of its projection and of the 2D baseline (None: not
             measured); bones_face: of :data:`FACE_BONES`.
-        render / baseline: :class:`~signsplat.stitch.render.RenderStats` of the avatar video
+        render / baseline: :class:`~signsplat.stitch.animate.RenderStats` of the avatar video
             and of the baseline drawing (None: not made).
     """
     rows = []

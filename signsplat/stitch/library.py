@@ -21,7 +21,7 @@ expression 10, translation 3 (:data:`SIGNAVATARS_LAYOUT`).
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,8 +29,8 @@ import numpy as np
 import pandas as pd
 
 from signsplat.errors import InputError
-from signsplat.io.tables import read_table, write_table
-from signsplat.synth.glosses import GlossClip
+from signsplat.io.tables import read_table
+from signsplat.motion.clips import GlossClip
 
 SIGNAVATARS_LAYOUT: tuple[tuple[str, int], ...] = (
     ("global_orient", 3), ("body_pose", 63), ("left_hand_pose", 45), ("right_hand_pose", 45),
@@ -200,29 +200,6 @@ def import_fitted(table, boundaries, fps: float, source: str, licence: str,
              else np.zeros((0, 3)) for b in blocks}
     return _cut(poses, read_boundaries(boundaries), len(df), fps, hand_mean, source, licence,
                 where)
-
-
-# --- library table --------------------------------------------------------------------------
-
-def clips_to_table(clips: Iterable[GlossClip]) -> pd.DataFrame:
-    """Clips -> ``gloss_library`` rows (extra list columns for ``global_orient``, ``transl``,
-    ``betas``, ``leye_pose``, ``reye_pose`` when a clip has them)."""
-    rows = []
-    for c in clips:
-        row = {"gloss": c.gloss, "words": list(c.words), "kind": c.kind, "fps": float(c.fps),
-               "num_frames": np.int32(c.num_frames), "source": c.source, "licence": c.licence,
-               "hand_mean": c.hand_mean}
-        for b, v in c.poses.items():
-            row[b] = np.asarray(v, np.float32).reshape(-1)
-        for b in ("body_pose", "left_hand_pose", "right_hand_pose", "jaw_pose", "expression"):
-            row.setdefault(b, np.zeros(0, np.float32))
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def write_library(clips: Iterable[GlossClip], path: str | os.PathLike) -> Path:
-    """Write imported clips as a ``gloss_library`` Parquet table (atomically)."""
-    return write_table(clips_to_table(clips), path, "gloss_library")
 
 
 def merge_libraries(*libraries: Mapping[str, GlossClip],

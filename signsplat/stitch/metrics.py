@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from signsplat.stitch.motion import ROTATION_BLOCKS, TRANSITION
+from signsplat.motion.stitching import ROTATION_BLOCKS, TRANSITION
 
 
 def _rotations(params: dict[str, np.ndarray], lo: int, hi: int) -> np.ndarray:
@@ -49,7 +49,7 @@ def join_metrics(track: dict[str, np.ndarray], fps: float, margin: int = 2) -> p
     """One row per join between consecutive glosses of a stitched track.
 
     Args:
-        track: output of :func:`signsplat.stitch.motion.stitch_clips` (blocks, ``label``,
+        track: output of :func:`signsplat.motion.stitching.stitch_clips` (blocks, ``label``,
             ``gloss_index``).
         fps: frame rate.
         margin: frames of each gloss included around the transition.

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from signsplat.config import validate
+from signsplat.device import add_runtime_args
 from signsplat.errors import InputError
 
 
@@ -16,16 +17,22 @@ def _json_arg(text: str, what: str):
         raise InputError(f"{what}: not valid JSON ({exc})") from None
 
 
+def _simulator_parser(prog: str, description: str, glosses_required: bool):
+    """The options of the simulating commands: the body, the gloss library, threads."""
+    parser = argparse.ArgumentParser(prog=f"signsplat {prog}", description=description)
+    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
+    parser.add_argument("--glosses", required=glosses_required, default=None,
+                        help="gloss library Parquet")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    add_runtime_args(parser, gpu=False)
+    return parser
+
+
 def simulate(argv: list[str]) -> int:
     """``signsplat simulate --scene-json JSON --body NPZ --glosses PARQUET --out DIR``."""
-    parser = argparse.ArgumentParser(prog="signsplat simulate",
-                                     description="Render a synthetic signer scene.")
+    parser = _simulator_parser("simulate", "Render a synthetic signer scene.", False)
     parser.add_argument("--scene-json", required=True, help="scene spec (validated) as JSON")
-    parser.add_argument("--body", required=True, help="body model .npz (SMPL-X layout)")
-    parser.add_argument("--glosses", default=None, help="gloss library Parquet")
     parser.add_argument("--out", required=True, help="output folder (results/<scene>/sim)")
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     args = parser.parse_args(argv)
 
     from signsplat.synth.simulate import simulate_scene
@@ -57,4 +64,24 @@ def gloss_library(argv: list[str]) -> int:
                    "stages/gloss_library.schema.yaml", "--config-json")
     write_gloss_library(args.out, seed=int(cfg["seed"]), fps=float(cfg["fps"]))
     print(f"wrote gloss library {args.out}")
+    return 0
+
+
+def simulate_training_set(argv: list[str]) -> int:
+    """``signsplat simulate-training-set --count N --seed S --body NPZ --glosses PARQUET
+    --out-dir DIR``: the detector training scenes, one ``DIR/<name>/sim`` folder each."""
+    parser = _simulator_parser("simulate-training-set", "Simulate the detector training scenes.",
+                               True)
+    parser.add_argument("--count", type=int, required=True, help="number of scenes")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the scene specs")
+    parser.add_argument("--out-dir", required=True, help="folder for the scene folders")
+    args = parser.parse_args(argv)
+    if args.count < 2:
+        parser.error(f"--count must be >= 2 (training and held-out scenes), got {args.count}")
+
+    from signsplat.synth.training_set import simulate_training_set as run
+
+    dirs = run(args.count, args.seed, args.body, args.glosses, args.out_dir, args.threads,
+               progress=not args.no_progress)
+    print(f"{len(dirs)} training scenes in {args.out_dir}")
     return 0

@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import os
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -28,15 +28,19 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from signsplat.errors import InputError
-from signsplat.io.tables import read_table, write_table
+from signsplat.io.tables import write_table
 from signsplat.synth import _gloss_body as gb
 from signsplat.synth._gloss_shapes import angles_to_pose, handshape_angles
-from signsplat.synth._gloss_signs import LETTERS, REST, SIGNS, Hand, Move, Sign, letter_sign
+from signsplat.synth._gloss_signs import (
+    LETTERS,
+    REST,
+    SIGNS,
+    Hand,
+    Move,
+    Sign,
+    letter_sign,
+)
 
-#: Block name -> values per frame, as stored in the table.
-BLOCK_SIZES = {"body_pose": 63, "left_hand_pose": 45, "right_hand_pose": 45, "jaw_pose": 3,
-               "expression": 10}
 #: Meaning of the expression coefficients the library drives (index into ``expression``).
 #: The proxy's expression directions (``signsplat.body._proxy_rig.EXPRESSION_NAMES``) use the
 #: same indices; for a real SMPL-X model the PCA directions differ and these are only small
@@ -46,37 +50,6 @@ EXPRESSION_INDEX = {"jaw_open": 0, "smile": 1, "brow_raise": 2, "brow_furrow": 3
 DOMINANT = "right"
 SOURCE = "signsplat.synth.glosses (procedural)"
 LICENCE = "CC0-1.0"
-
-
-@dataclass
-class GlossClip:
-    """One gloss clip.
-
-    Attributes:
-        gloss: gloss name (upper case).
-        words: English words/lemmas it translates.
-        kind: 'sign' or 'letter'.
-        fps: frames per second.
-        hand_mean: 'flat' or 'mano' convention of the hand poses.
-        poses: block name -> (N, k) float32 array (``body_pose`` 63, ``left_hand_pose`` 45,
-            ``right_hand_pose`` 45, ``jaw_pose`` 3, ``expression`` 10; imported clips may add
-            ``global_orient`` 3, ``transl`` 3, ``betas``).
-        source, licence: provenance.
-    """
-
-    gloss: str
-    words: tuple[str, ...]
-    kind: str
-    fps: float
-    hand_mean: str
-    poses: dict[str, np.ndarray]
-    source: str = ""
-    licence: str = ""
-    meta: dict = field(default_factory=dict)
-
-    @property
-    def num_frames(self) -> int:
-        return int(next(iter(self.poses.values())).shape[0])
 
 
 # --- time and movement --------------------------------------------------------------------
@@ -223,7 +196,7 @@ def _nonmanual(sign: Sign, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def build_gloss(sign: Sign, seed: int = 0, fps: float = 25.0,
                 skel: gb.Skeleton = gb.STANDARD) -> dict[str, np.ndarray]:
-    """SMPL-X blocks (N, k) float32 of one gloss (see :data:`BLOCK_SIZES`)."""
+    """SMPL-X blocks (N, k) float32 of one gloss (see :data:`signsplat.motion.clips.BLOCK_SIZES`)."""
     rng = np.random.default_rng([seed, zlib.crc32(sign.gloss.encode())])
     scale = rng.uniform(0.93, 1.07)
     n = max(3, int(round(sign.duration * scale * fps)))
@@ -313,34 +286,3 @@ def write_gloss_library(path: str | os.PathLike, seed: int = 0, fps: float = 25.
     meta = {"hand_mean": "flat", "seed": str(seed), "fps": str(fps), "dominant": DOMINANT,
             "expression_index": json.dumps(EXPRESSION_INDEX)}
     return write_table(df, path, "gloss_library", metadata=meta)
-
-
-def clips_from_table(df: pd.DataFrame, where: str = "<table>") -> dict[str, GlossClip]:
-    """Turn ``gloss_library`` rows into clips; list columns are reshaped to (N, k)."""
-    extra = ("global_orient", "transl", "betas", "leye_pose", "reye_pose")
-    clips: dict[str, GlossClip] = {}
-    for row in df.itertuples(index=False):
-        n = int(row.num_frames)
-        poses = {}
-        for name in list(BLOCK_SIZES) + [c for c in extra if c in df.columns]:
-            val = getattr(row, name)
-            if val is None or (not isinstance(val, (list, np.ndarray))):
-                continue
-            arr = np.asarray(val, dtype=np.float32)
-            if n == 0 or arr.size % n:
-                raise InputError(f"{where}: gloss {row.gloss!r} column {name!r} has {arr.size} "
-                                 f"values, not a multiple of num_frames={n}")
-            poses[name] = arr.reshape(n, -1)
-        for name, k in BLOCK_SIZES.items():
-            if name in poses and name != "expression" and poses[name].shape[1] != k:
-                raise InputError(f"{where}: gloss {row.gloss!r} column {name!r} has "
-                                 f"{poses[name].shape[1]} values per frame, expected {k}")
-        clips[row.gloss] = GlossClip(
-            gloss=row.gloss, words=tuple(row.words), kind=row.kind, fps=float(row.fps),
-            hand_mean=row.hand_mean, poses=poses, source=row.source, licence=row.licence)
-    return clips
-
-
-def load_gloss_library(path: str | os.PathLike) -> dict[str, GlossClip]:
-    """Read a ``gloss_library`` Parquet file -> gloss name -> :class:`GlossClip`."""
-    return clips_from_table(read_table(path, "gloss_library"), str(path))

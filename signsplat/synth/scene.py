@@ -16,8 +16,8 @@ A scene spec is the validated dict of ``config/scenes/<name>.yaml``
 from __future__ import annotations
 
 import os
-from dataclasses import replace
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -130,12 +130,12 @@ def _resample(track: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
 
 
 def _stitch(clips, hold_frames: int, transition_frames: int) -> dict[str, np.ndarray]:
-    """Compose gloss clips with ``signsplat.stitch.motion.stitch_clips`` (SLERP + cubic ease).
+    """Compose gloss clips with ``signsplat.motion.stitching.stitch_clips`` (SLERP + cubic ease).
 
     ``hold_frames`` holds the first and last pose of every gloss; ``transition_frames`` is the
     shortest transition (the stitcher lengthens transitions with large joint motion).
     """
-    from signsplat.stitch.motion import StitchConfig, stitch_clips
+    from signsplat.motion.stitching import StitchConfig, stitch_clips
 
     config = StitchConfig(hold_start=hold_frames, hold_end=hold_frames,
                           min_transition=transition_frames,
@@ -146,7 +146,7 @@ def _stitch(clips, hold_frames: int, transition_frames: int) -> dict[str, np.nda
 
 def _gloss_tracks(names: Sequence[str], gloss_path: str | os.PathLike, fps: float,
                   hold_frames: int, transition_frames: int) -> dict[str, np.ndarray]:
-    from signsplat.synth.glosses import load_gloss_library
+    from signsplat.motion.clips import load_gloss_library
 
     library = load_gloss_library(gloss_path)
     missing = [g for g in names if g not in library]

@@ -1,18 +1,17 @@
 """Camera refinement (train.refine_cameras): parameterisation, gauge, and that training with it
 pulls perturbed cameras back towards the ones the images were rendered with."""
 
-import math
-
 import dataclasses
+import math
 
 import numpy as np
 import roma
 import torch
+from avatar_scenes import look_at
+from test_avatar_train import _cfg, scene  # noqa: F401  (module fixture)
 
-from conftest import look_at
 from signsplat.avatar.cameras import CameraRefinement
 from signsplat.avatar.train import AvatarTrainer, cameras_refined
-from test_avatar_train import _cfg, scene  # noqa: F401  (module fixture)
 
 
 def _rig():

@@ -4,54 +4,32 @@ import json
 
 import numpy as np
 import torch
+from avatar_scenes import random_smplx, rig
+from test_avatar_train import SIZE, _write_scene
 
-from conftest import TinyBody, random_smplx, rig
-from signsplat.avatar.cli import evaluate, train_avatar
+from signsplat.avatar.checkpoint import build_model
+from signsplat.avatar.cli import evaluate_avatar, train_avatar
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.data import SceneData
 from signsplat.avatar.ply import read_gaussian_ply
-from signsplat.avatar.train import build_model, render_gaussians
-from signsplat.body import joints as J
+from signsplat.avatar.train import render_gaussians
 from signsplat.body.model import BodyModel
-from signsplat.body.model_file import write_model_file
 from signsplat.io.tables import read_table
 from signsplat.render import rasterization
-from test_avatar_train import SIZE, _write_scene
 
 CFG = {
     "upsample": {"edge_length": 0.08, "face_area": 3e-3},
     "model": {"scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}, "hidden": 8,
               "sh_degree": 1},
     "train": {"iterations": 4, "test_interval": 3, "test_offset": 2, "log_every": 1,
-              "checkpoint_every": 2, "threads": 1, "smplx_source": "ground_truth"},
+              "checkpoint_every": 2, "smplx_source": "ground_truth"},
     "eval": {"refine_steps": 1, "save_images": 1,
              "crop_size": {"body": 0.0, "head": 0.4, "hands": 0.4}},
 }
 
 
-def _body_file(path):
-    tiny = TinyBody()
-    v = tiny.v_template.numpy()
-    n = len(v)
-    d = np.linalg.norm(v[None] - tiny.rest_joints.numpy()[:, None], axis=-1)  # (55, V)
-    reg = np.exp(-d / 0.05)
-    kin = np.stack([np.array(J.SMPLX_PARENTS), np.arange(55)])
-    arrays = {
-        "v_template": v, "f": tiny.faces.numpy(), "shapedirs": tiny.shapedirs.numpy(),
-        "posedirs": np.zeros((n, 3, 486)), "J_regressor": reg / reg.sum(1, keepdims=True),
-        "weights": tiny.lbs_weights.numpy(), "kintree_table": kin,
-        "hands_componentsl": np.eye(45), "hands_componentsr": np.eye(45),
-        "hands_meanl": np.zeros(45), "hands_meanr": np.zeros(45),
-        "lmk_faces_idx": np.zeros(51, np.int64), "lmk_bary_coords": np.full((51, 3), 1 / 3),
-        "part_labels": tiny.part_labels.numpy(), "num_shape_dirs": np.array(10),
-        "num_expression_dirs": np.array(10),
-    }
-    write_model_file(path, arrays)
-    return BodyModel.from_file(path)
-
-
-def test_train_then_evaluate_on_files(tmp_path):
-    body = _body_file(tmp_path / "body.npz")
+def test_train_then_evaluate_on_files(tmp_path, tiny_body_path):
+    body = BodyModel.from_file(tiny_body_path)
     vm, K = rig(3, SIZE)
     smplx = random_smplx(6)
     teacher = build_model(body, torch.zeros(1, 10), avatar_config(CFG))
@@ -69,7 +47,7 @@ def test_train_then_evaluate_on_files(tmp_path):
                      torch.full((3, 6, SIZE, SIZE), 255, dtype=torch.uint8), vm, K, smplx)
     scene = tmp_path / "sim"
     _write_scene(scene, data, smplx)
-    common = ["--body", str(tmp_path / "body.npz"), "--frames", str(scene / "frames.parquet"),
+    common = ["--body", str(tiny_body_path), "--frames", str(scene / "frames.parquet"),
               "--cameras", str(scene / "cameras.parquet"), "--smplx",
               str(scene / "smplx.parquet"), "--config-json", json.dumps(CFG), "--variant",
               "demo", "--device", "cpu"]
@@ -85,7 +63,7 @@ def test_train_then_evaluate_on_files(tmp_path):
     assert train_avatar(common + ["--out", str(out), "--no-progress", "--resume"]) == 0
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == before == 4
     ev = tmp_path / "eval"
-    assert evaluate(common + ["--out", str(ev), "--checkpoint", str(out / "checkpoint.pt")]) == 0
+    assert evaluate_avatar(common + ["--out", str(ev), "--checkpoint", str(out / "checkpoint.pt")]) == 0
     m = read_table(ev / "metrics.parquet", "avatar_metrics")
     assert set(m.scene) == {"tiny"} and set(m.variant) == {"demo"}
     assert (m.smplx_source == "ground_truth").all() and (m.train_seconds > 0).all()

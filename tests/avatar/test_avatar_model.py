@@ -4,11 +4,11 @@ import math
 
 import roma
 import torch
+from avatar_scenes import SIZES, random_smplx, rig
 
-from conftest import SIZES, random_smplx, rig
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.model import sh_degree_at, wxyz_to_xyzw
-from signsplat.avatar.train import build_model
 from signsplat.render import rasterization
 
 CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}

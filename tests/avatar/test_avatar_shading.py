@@ -3,11 +3,11 @@
 import math
 
 import torch
+from avatar_scenes import random_smplx
 
-from conftest import random_smplx
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.model import irradiance_basis, shade_sh
-from signsplat.avatar.train import build_model
 from signsplat.render.sh import spherical_harmonics
 
 CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}

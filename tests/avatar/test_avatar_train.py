@@ -7,13 +7,15 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from avatar_scenes import make_scene, random_smplx, rig
 
-from conftest import TinyBody, make_scene, random_smplx, rig
 from signsplat.avatar import regularize as reg_mod
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.data import load_scene
 from signsplat.avatar.evaluate import evaluate_checkpoint
-from signsplat.avatar.train import AvatarTrainer, build_model, render_gaussians
+from signsplat.avatar.train import AvatarTrainer, render_gaussians
+from signsplat.body.model import BodyModel
 from signsplat.io.images import write_png
 from signsplat.io.tables import read_table, write_table
 from signsplat.render import rasterization
@@ -39,9 +41,9 @@ def _cfg(**over):
 
 
 @pytest.fixture(scope="module")
-def scene():
+def scene(tiny_body_path):
     torch.manual_seed(0)
-    body = TinyBody()
+    body = BodyModel.from_file(tiny_body_path)
     vm, K = rig(3, SIZE)
     smplx = random_smplx(6)
     teacher = build_model(body, torch.zeros(1, 10), _cfg())
@@ -357,9 +359,9 @@ def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path
 
 
 def test_held_out_frames_take_the_interpolated_fine_tuning_of_their_neighbours(scene, tmp_path):
+    from signsplat.avatar import load_avatar
     from signsplat.avatar.evaluate import apply_heldout_pose
     from signsplat.avatar.poses import interpolation_weights
-    from signsplat.avatar.train import load_avatar
 
     body, data = scene
     tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "lr_smplx": 1e-2}))

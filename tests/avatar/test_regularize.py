@@ -2,10 +2,14 @@
 
 import torch
 
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
-from signsplat.avatar.regularize import (Regularizer, build_neighbourhoods, displacement_terms,
-                                         neighbourhood_variance)
-from signsplat.avatar.train import build_model
+from signsplat.avatar.regularize import (
+    Regularizer,
+    build_neighbourhoods,
+    displacement_terms,
+    neighbourhood_variance,
+)
 from signsplat.body.joints import PART_HEAD
 
 

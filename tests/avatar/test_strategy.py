@@ -1,12 +1,12 @@
 """Density control on the mesh: growth on adjacent faces, the point cap, pruning by subsampling."""
 
 import torch
+from avatar_scenes import rig
 
-from conftest import rig
+from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.model import POINT_PARAMS, face_normals
 from signsplat.avatar.strategy import MeshDensifyStrategy
-from signsplat.avatar.train import build_model
 from signsplat.render import rasterization
 
 
@@ -57,12 +57,22 @@ def test_new_points_lie_on_adjacent_faces_and_learn_their_place(tiny_body):
     n0 = model.num_points
     meta = _render_backward(model, tiny_body, s)
     opt.step()
+    with torch.no_grad():  # tag every point: a new point copies its parent's tensors
+        model.sh_dc[:, 0, 0] = torch.arange(n0, dtype=torch.float32)
+    anchors0, face0 = model.anchors.clone(), model.face.clone()
     s.step_post_backward(model, opt, state, 1, [meta])
     new = torch.arange(n0, model.num_points)
     assert len(new) == 50 and bool(model.learnable[new].all())
     assert not bool(model.is_original[new].any())
     tri = model.faces[model.face[new]]
     assert torch.equal(model.anchors[new], tri)
+    # adjacency: a child of a mesh vertex lies on a face containing that vertex, a child of a
+    # point on a face on that same face
+    parent = model.sh_dc[new, 0, 0].detach().round().long()
+    from_vertex = face0[parent] < 0
+    assert bool(from_vertex.any()) and bool((~from_vertex).any())
+    assert bool((tri[from_vertex] == anchors0[parent[from_vertex], :1]).any(1).all())
+    assert torch.equal(model.face[new][~from_vertex], face0[parent[~from_vertex]])
     k = model.barycentric()[new]
     torch.testing.assert_close(k.sum(1), torch.ones(len(new)))
     assert bool((k > 0).all())

@@ -1,5 +1,5 @@
-"""Shared assets of the body tests: the proxy model (written once per session) and a small fake
-model in the official SMPL-X layout."""
+"""Shared assets of the body tests: the proxy model's arrays (the model file is written once in
+tests/conftest.py) and a small fake model in the official SMPL-X layout."""
 
 from __future__ import annotations
 
@@ -10,19 +10,10 @@ from signsplat.body.joints import NUM_JOINTS, SMPLX_PARENTS
 
 
 @pytest.fixture(scope="session")
-def proxy_path(tmp_path_factory):
-    from signsplat.body.proxy import write_proxy_model
-
-    path = tmp_path_factory.mktemp("body") / "proxy.npz"
-    write_proxy_model(path, seed=0)
-    return path
-
-
-@pytest.fixture(scope="session")
-def proxy_arrays(proxy_path):
+def proxy_arrays(proxy_body_path):
     from signsplat.body.model_file import load_model_arrays
 
-    return load_model_arrays(proxy_path)
+    return load_model_arrays(proxy_body_path)
 
 
 def fake_official_arrays(num_vertices: int = 330, num_dirs: int = 20, seed: int = 0) -> dict:

@@ -10,21 +10,21 @@ import numpy as np
 from signsplat.cli import main
 
 
-def test_copies_and_checks_a_given_file(proxy_path, tmp_path, capsys):
+def test_copies_and_checks_a_given_file(proxy_body_path, tmp_path, capsys):
     out = tmp_path / "assets" / "body_model.npz"
-    cfg = {"path": str(proxy_path), "num_betas": 10, "num_expression": 10}
+    cfg = {"path": str(proxy_body_path), "num_betas": 10, "num_expression": 10}
     assert main(["body-model", "--config-json", json.dumps(cfg), "--out", str(out)]) == 0
-    assert out.read_bytes() == proxy_path.read_bytes()
+    assert out.read_bytes() == proxy_body_path.read_bytes()
     msg = capsys.readouterr().out
     assert "10475 vertices" in msg and "checked copy" in msg
 
 
-def test_null_path_writes_the_proxy(monkeypatch, proxy_path, tmp_path, capsys):
+def test_null_path_writes_the_proxy(monkeypatch, proxy_body_path, tmp_path, capsys):
     calls = []
 
     def fake_write(path, seed=0):  # the real generator is covered by test_proxy.py
         calls.append(seed)
-        shutil.copyfile(proxy_path, path)
+        shutil.copyfile(proxy_body_path, path)
         return path
 
     monkeypatch.setattr("signsplat.body.proxy.write_proxy_model", fake_write)

@@ -15,8 +15,8 @@ NAMES = JN.COCO_WHOLEBODY_NAMES
 
 
 @pytest.fixture(scope="module")
-def model(proxy_path):
-    return BodyModel.from_file(proxy_path, dtype=torch.float64)
+def model(proxy_body_path):
+    return BodyModel.from_file(proxy_body_path, dtype=torch.float64)
 
 
 @pytest.fixture(scope="module")

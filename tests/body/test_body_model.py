@@ -10,7 +10,12 @@ import torch
 from smplx.lbs import lbs as smplx_lbs
 
 from signsplat.body import joints as JN
-from signsplat.body.model import BodyModel, axis_angle_to_matrix, derive_part_labels, skin_points
+from signsplat.body.model import (
+    BodyModel,
+    axis_angle_to_matrix,
+    derive_part_labels,
+    skin_points,
+)
 
 
 def _random_inputs(B, gen, scale=0.5, dtype=torch.float32):
@@ -36,13 +41,13 @@ def _reference(model, inp):
 
 
 @pytest.fixture(scope="module")
-def proxy(proxy_path):
-    return BodyModel.from_file(proxy_path)
+def proxy(proxy_body_path):
+    return BodyModel.from_file(proxy_body_path)
 
 
 @pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-5), (torch.float64, 1e-7)])
-def test_lbs_matches_smplx_on_proxy(proxy_path, dtype, tol):
-    model = BodyModel.from_file(proxy_path, dtype=dtype)
+def test_lbs_matches_smplx_on_proxy(proxy_body_path, dtype, tol):
+    model = BodyModel.from_file(proxy_body_path, dtype=dtype)
     gen = torch.Generator().manual_seed(0)
     inp = _random_inputs(6, gen, scale=0.6, dtype=dtype)
     out = model(**inp)
@@ -141,19 +146,19 @@ def test_batch_broadcast_and_sizes(proxy):
         proxy(betas=torch.zeros(2, 10), body_pose=torch.zeros(3, 63))
 
 
-def test_hand_mean_mano_adds_the_mean(proxy_path):
-    flat = BodyModel.from_file(proxy_path)
-    mano = BodyModel.from_file(proxy_path, hand_mean="mano")
+def test_hand_mean_mano_adds_the_mean(proxy_body_path):
+    flat = BodyModel.from_file(proxy_body_path)
+    mano = BodyModel.from_file(proxy_body_path, hand_mean="mano")
     a = mano()
     b = flat(left_hand_pose=flat.hands_mean_l[None], right_hand_pose=flat.hands_mean_r[None])
     torch.testing.assert_close(a.vertices, b.vertices)
     assert (a.vertices - flat().vertices).abs().max() > 1e-3
     with pytest.raises(ValueError):
-        BodyModel.from_file(proxy_path, hand_mean="relaxed")
+        BodyModel.from_file(proxy_body_path, hand_mean="relaxed")
 
 
-def test_float64_and_device_move(proxy_path):
-    m = BodyModel.from_file(proxy_path, dtype=torch.float64)
+def test_float64_and_device_move(proxy_body_path):
+    m = BodyModel.from_file(proxy_body_path, dtype=torch.float64)
     assert m.v_template.dtype == torch.float64
     out = m.to("cpu")(body_pose=torch.zeros(1, 63))
     assert out.vertices.dtype == torch.float64
@@ -172,15 +177,15 @@ def test_derive_part_labels():
         [JN.PART_LEFT_HAND, JN.PART_RIGHT_HAND, JN.PART_HEAD, JN.PART_BODY, JN.PART_HEAD])
 
 
-def test_smplx_package_reads_the_proxy_file_the_same_way(proxy_path):
+def test_smplx_package_reads_the_proxy_file_the_same_way(proxy_body_path):
     """The proxy is a valid official-layout file: smplx.SMPLX loads it and poses it alike."""
     import smplx
 
     B = 2
-    ref = smplx.SMPLX(str(proxy_path), ext="npz", use_pca=False, flat_hand_mean=True,
+    ref = smplx.SMPLX(str(proxy_body_path), ext="npz", use_pca=False, flat_hand_mean=True,
                       num_betas=10, num_expression_coeffs=10, use_face_contour=False,
                       batch_size=B)
-    model = BodyModel.from_file(proxy_path)
+    model = BodyModel.from_file(proxy_body_path)
     inp = _random_inputs(B, torch.Generator().manual_seed(5), scale=0.4)
     with torch.no_grad():
         want = ref(return_verts=True, **inp)

@@ -15,8 +15,8 @@ JI = JN.JOINT_INDEX
 
 
 @pytest.fixture(scope="module")
-def model(proxy_path):
-    return BodyModel.from_file(proxy_path, num_betas=10, num_expression=10, dtype=torch.float64)
+def model(proxy_body_path):
+    return BodyModel.from_file(proxy_body_path, num_betas=10, num_expression=10, dtype=torch.float64)
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from signsplat.cli import main
 from signsplat.colmap.compare import CompareConfig, evenly, plan_runs
-from signsplat.config import validate
+from signsplat.config import ConfigError, validate
 from signsplat.errors import InputError
 from signsplat.io.tables import read_table, write_table
 
@@ -107,21 +107,23 @@ def test_cli_missing_fit_cameras_names_the_file(textured_rig, tmp_path, capsys):
 
 def test_plan_runs_static_steps_and_sequence():
     frames = pd.DataFrame({"view": np.repeat(np.arange(3), 10), "frame": np.tile(np.arange(10), 3)})
-    runs = plan_runs(frames, CompareConfig(num_static_frames=3, sequence_frames=4))
+    runs = plan_runs(frames, CompareConfig.from_dict({"num_static_frames": 3,
+                                                      "sequence_frames": 4}))
     assert [r.method for r in runs] == ["colmap_static_frame_0", "colmap_static_frame_4",
                                         "colmap_static_frame_9", "colmap_sequence"]
     assert runs[1].keys == ((0, 4), (1, 4), (2, 4))
     assert len(runs[-1].keys) == 12 and runs[-1].frame == -1
-    assert [r.method for r in plan_runs(frames, CompareConfig(static_frames=(5,),
-                                                              sequence_frames=0))] == \
-        ["colmap_static_frame_5"]
+    assert [r.method for r in plan_runs(frames, CompareConfig.from_dict(
+        {"static_frames": [5], "sequence_frames": 0}))] == ["colmap_static_frame_5"]
     assert evenly(list(range(5)), 10) == list(range(5))
 
 
 def test_schema_defaults_build_the_config():
-    cfg = CompareConfig.from_dict(validate({}, "stages/colmap.schema.yaml"))
-    assert cfg == CompareConfig()
-    with pytest.raises(InputError, match="bogus"):
+    cfg = CompareConfig.from_dict({})
+    assert cfg == CompareConfig.from_dict(validate({}, "stages/colmap.schema.yaml"))
+    assert [s.name for s in cfg.settings] == ["known_intrinsics", "estimated_intrinsics",
+                                              "known_intrinsics_relaxed"]
+    with pytest.raises(ConfigError, match="bogus"):
         CompareConfig.from_dict({"bogus": 1})
     with pytest.raises(InputError, match="unique"):
         CompareConfig.from_dict({"settings": [{"name": "a"}, {"name": "a"}]})

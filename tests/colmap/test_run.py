@@ -5,9 +5,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from signsplat.colmap.compare import GroundTruth, RunSpec, colmap_row, image_inputs
+from signsplat.colmap.compare import (MAPPER_KEYS, GroundTruth, RunSpec, colmap_row,
+                                      image_inputs)
 from signsplat.colmap.run import ColmapOptions, run_colmap
+from signsplat.config import schema_defaults
 from signsplat.io.tables import read_table
+
+# the workflow's SIFT and mapper thresholds (the colmap schema's defaults)
+MAPPER = {k: v for k, v in schema_defaults("stages/colmap.schema.yaml").items()
+          if k in MAPPER_KEYS}
 
 
 def _inputs(folder: Path, frame: int = 0):
@@ -19,7 +25,8 @@ def _inputs(folder: Path, frame: int = 0):
 
 def _run(folder: Path, known: bool = True, **kw):
     images, gt = _inputs(folder)
-    result = run_colmap(images, ColmapOptions(known_intrinsics=known, num_threads=2, **kw))
+    result = run_colmap(images, ColmapOptions(**{**MAPPER, **kw}, known_intrinsics=known,
+                                                    num_threads=2))
     row, al = colmap_row(folder.name, RunSpec("colmap_static_frame_0", 0, ()), "test", known,
                          images, result, gt)
     return result, row, al
@@ -73,7 +80,7 @@ def test_nearly_coincident_cameras_do_not_initialise(coincident_rig):
 
 def test_single_image_fails_without_running(textured_rig):
     images, _ = _inputs(textured_rig)
-    result = run_colmap(images[:1], ColmapOptions())
+    result = run_colmap(images[:1], ColmapOptions(**MAPPER))
     assert result.status.startswith("failed") and result.registered == 0
 
 
@@ -94,6 +101,6 @@ class _DiesWhenUnpickled:
 
 def test_a_dying_child_is_a_recorded_crash(textured_rig):
     images, _ = _inputs(textured_rig)
-    result = run_colmap(images + [_DiesWhenUnpickled()], ColmapOptions(num_threads=1))
+    result = run_colmap(images + [_DiesWhenUnpickled()], ColmapOptions(**MAPPER, num_threads=1))
     assert result.status.startswith("crashed") and "exit code 3" in result.status
     assert result.registered == 0 and result.num_images == 9

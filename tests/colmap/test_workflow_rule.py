@@ -35,7 +35,8 @@ def test_rule_runs_for_multiview_scenes_only(textured_rig, tmp_path):
         f'configfile: "{tmp_path / "config.yaml"}"\n'
         f'include: "{ROOT / "workflow/rules/common.smk"}"\n'
         f'include: "{ROOT / "workflow/rules/colmap.smk"}"\n'
-        "rule all:\n    input: FINAL_OUTPUTS\n    default_target: True\n")
+        "rule all:\n    input: expand(rules.colmap_compare.output.table,"
+        " scene=PLAN.multiview_scenes)\n    default_target: True\n")
     # stage 4 views of the rig as simulator output (first frame only; the default settings
     # make 2 runs x 3 settings) and a fit that reproduces the truth
     sim, fit = tmp_path / "results/rig8/sim", tmp_path / "results/rig8/fit"

@@ -1,5 +1,5 @@
-"""Shared assets of the fit tests: the proxy body (written once) and synthetic observations
-projected from known SMPL-X parameters and cameras (no simulator needed)."""
+"""Shared assets of the fit tests: the keypoint model of the proxy body (tests/conftest.py)
+and synthetic observations projected from known SMPL-X parameters and cameras."""
 
 from __future__ import annotations
 
@@ -12,20 +12,11 @@ from signsplat.fit.cameras import Rig, intrinsics_from_fov, project, rig_prior
 
 
 @pytest.fixture(scope="session")
-def body_path(tmp_path_factory):
-    from signsplat.body.proxy import write_proxy_model
-
-    path = tmp_path_factory.mktemp("fit_body") / "body.npz"
-    write_proxy_model(path, seed=0)
-    return path
-
-
-@pytest.fixture(scope="session")
-def kpm(body_path):
+def kpm(proxy_body_path):
     from signsplat.fit.bodyfit import load_keypoint_model
 
     torch.set_num_threads(1)  # shared CPUs: oversubscribed OpenMP threads are very slow
-    return load_keypoint_model(body_path, 10, 10, "cpu")
+    return load_keypoint_model(proxy_body_path, 10, 10, "cpu")
 
 
 def random_motion(T: int, seed: int = 0) -> dict[str, np.ndarray]:

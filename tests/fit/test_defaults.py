@@ -23,7 +23,7 @@ def test_the_helper_names_a_code_default_that_differs():
         unrelated: int = 3  # not a key of the section: not compared
 
     bad = default_mismatches(Old, {"kernel": "huber", "sigma_px": 8.0})
-    assert bad == ["Old.sigma_px: code default 10.0, schema 8.0"]
+    assert bad == ["Old.sigma_px: code 10.0, schema 8.0"]
     with pytest.raises(AssertionError, match="sigma_px"):
         assert_defaults_match(Old, {"sigma_px": 8.0})
     assert_defaults_match(Old, {"sigma_px": 10.0})

@@ -191,7 +191,7 @@ def _write_inputs(tmp_path, kpm, T=3, V=2):
     return tmp_path
 
 
-def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
+def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
     d = _write_inputs(tmp_path, kpm)
     cfg = FAST_MV | {"overlay": {"frames_per_view": 1}, "keypoints": "ground_truth"}
     for st in cfg["multiview"]["stages"]:
@@ -201,7 +201,7 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
     try:
         code = main(["fit", "--config-json", json.dumps(cfg), "--keypoints",
                      str(d / "kp.parquet"), "--calibration", str(d / "cameras.parquet"),
-                     "--frames", str(d / "frames.parquet"), "--body", str(body_path),
+                     "--frames", str(d / "frames.parquet"), "--body", str(proxy_body_path),
                      "--out-dir", str(out), "--gt-smplx", str(d / "gt.parquet"),
                      "--gt-cameras", str(d / "cameras.parquet")])
         assert torch.are_deterministic_algorithms_enabled()  # reproducible gathers
@@ -223,11 +223,11 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, body_path):
     assert len(list((out / "overlays").glob("*.png"))) == 2
 
 
-def test_cli_bad_input_names_the_file(tmp_path, body_path, capsys):
+def test_cli_bad_input_names_the_file(tmp_path, proxy_body_path, capsys):
     missing = tmp_path / "nokp.parquet"
     (tmp_path / "cams.parquet").write_text("not parquet")
     code = main(["fit", "--keypoints", str(missing), "--calibration",
-                 str(tmp_path / "cams.parquet"), "--body", str(body_path), "--out-dir",
+                 str(tmp_path / "cams.parquet"), "--body", str(proxy_body_path), "--out-dir",
                  str(tmp_path / "o")])
     assert code == 2
     assert "cams.parquet" in capsys.readouterr().err
@@ -469,14 +469,14 @@ def test_calibrated_cameras_stay_fixed_and_the_body_is_placed_from_them(kpm):
         fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
 
 
-def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, body_path, capsys):
+def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, proxy_body_path, capsys):
     d = _write_inputs(tmp_path, kpm)
     cfg = json.loads(json.dumps(FAST_MV))
     cfg["multiview"]["camera_init"] = "calibrated"
     for st in cfg["multiview"]["stages"]:
         st["iterations"] = 2
     base = ["fit", "--config-json", json.dumps(cfg), "--keypoints", str(d / "kp.parquet"),
-            "--frames", str(d / "frames.parquet"), "--body", str(body_path)]
+            "--frames", str(d / "frames.parquet"), "--body", str(proxy_body_path)]
     assert main(base + ["--out-dir", str(d / "nocal")]) == 2
     assert "--calibration" in capsys.readouterr().err
     cams = read_table(d / "cameras.parquet", "cameras")

@@ -251,7 +251,7 @@ def test_read_grey_images(tmp_path):
         fit_data.read_grey_images(bad, np.array([3]), [24, 24], [16, 16], "frames.parquet")
 
 
-def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys):
+def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, proxy_body_path, capsys):
     """A flow stage needs --frames (error names the stage and the flag); the fit then runs."""
     from test_fit import FAST_MV, _write_inputs
 
@@ -273,7 +273,7 @@ def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys
     cfg["multiview"]["stages"].append({"name": "fl", "iterations": 2, "lr": 0.001,
                                        "groups": ["root"], "flow": 10})
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
-            str(d / "cameras.parquet"), "--body", str(body_path), "--masks", str(masks),
+            str(d / "cameras.parquet"), "--body", str(proxy_body_path), "--masks", str(masks),
             "--config-json", json.dumps(cfg)]
     assert main(args + ["--out-dir", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err
@@ -283,7 +283,7 @@ def test_cli_reads_images_only_for_a_flow_stage(tmp_path, kpm, body_path, capsys
     assert (tmp_path / "b" / "smplx_fit.parquet").is_file()
 
 
-def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, body_path, capsys):
+def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, proxy_body_path, capsys):
     from test_fit import _write_inputs
 
     from signsplat.cli import main
@@ -293,7 +293,7 @@ def test_single_view_fit_refuses_the_multi_view_terms(tmp_path, kpm, body_path, 
                                              "groups": ["root"], "flow": 1}]}}
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
             str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
-            str(body_path), "--view", "0", "--config-json", json.dumps(cfg),
+            str(proxy_body_path), "--view", "0", "--config-json", json.dumps(cfg),
             "--out-dir", str(tmp_path / "o")]
     assert main(args) == 2
     err = capsys.readouterr().err

@@ -221,7 +221,7 @@ def test_read_masks(tmp_path):
         fit_data.read_masks(tmp_path / "nothere.parquet", np.array([3]), [24], [16])
 
 
-def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, capsys):
+def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, proxy_body_path, capsys):
     """Without silhouette weights the masks file is never opened (a missing one is fine); with
     them, a missing file is an error naming it."""
     from test_fit import FAST_MV, _write_inputs
@@ -234,7 +234,7 @@ def test_cli_reads_masks_only_for_a_silhouette_stage(tmp_path, kpm, body_path, c
         st["iterations"] = 5
     args = ["fit", "--keypoints", str(d / "kp.parquet"), "--calibration",
             str(d / "cameras.parquet"), "--frames", str(d / "frames.parquet"), "--body",
-            str(body_path), "--masks", str(tmp_path / "missing_masks.parquet")]
+            str(proxy_body_path), "--masks", str(tmp_path / "missing_masks.parquet")]
     assert main(args + ["--config-json", json.dumps(cfg), "--out-dir", str(tmp_path / "a")]) == 0
     cfg["multiview"]["stages"].append({"name": "sil", "iterations": 2, "lr": 0.001,
                                        "groups": ["root"], "silhouette": {"cover": 10}})

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from signsplat.io.atomic import atomic_path, is_temporary
-from signsplat.io.tables import TABLES, TableError, read_table, write_table
+from signsplat.io.tables import TableError, read_table, write_table
 
 
 def _timings():
@@ -92,7 +92,3 @@ def test_a_terminated_command_leaves_no_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == [target], "no temporary file left behind"
     assert not is_temporary(target)
 
-
-def test_every_table_is_documented():
-    for table in TABLES.values():
-        assert table.doc and all(desc for desc in table.columns.values())

@@ -14,7 +14,7 @@ from signsplat.body.joints import KP_BODY, KP_LEFT_HAND
 from signsplat.perception.cli import perception_config, specs
 from signsplat.perception.contracts import load_keypointer, load_segmenter
 from signsplat.perception.evaluate import mask_iou
-from signsplat.perception.images import read_mask, read_rgb
+from signsplat.io.images import read_mask, read_rgb
 from signsplat.perception.keypoints import box_from_mask, detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
 

@@ -11,7 +11,7 @@ from signsplat.errors import InputError
 from signsplat.io.tables import read_table
 from signsplat.perception.cli import detect_keypoints, perception_eval, segment
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
-from signsplat.perception.images import read_mask
+from signsplat.io.images import read_mask
 from signsplat.perception.stages import detect_sequence, segment_sequence
 
 
@@ -72,7 +72,6 @@ def test_corrupt_and_missing_images_name_the_file_and_keep_other_outputs(models,
 
 def test_cli_stages_and_eval_table(models, fake_scene, tmp_path, capsys):
     cfg = json.dumps({
-        "threads": 1,
         "segmenter": {"model": str(models["bright_seg"]), "input_size": [64, 64]},
         "keypoints": {"model": str(models["tiny_kp"])},
         "eval": {"speed_frames": 4},

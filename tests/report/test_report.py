@@ -47,8 +47,16 @@ def test_collect_finds_every_stage(results_dir):
 
 
 def test_ablation_and_sweep_tables_use_benchmark_seconds(results_dir):
-    a = runs.ablation_table(results_dir, "tiny", {"full": "abl_full", "w/o reg": "abl_no_reg"})
-    full = a.set_index("variant").loc["full"]
+    a = runs.ablation_table(results_dir, "tiny", [
+        {"label": "full", "iterations": 300, "variant": "abl_full"},
+        {"label": "w/o reg", "iterations": 300, "variant": "abl_no_reg"}])
+    # one row per variant and split the evaluation scored, in the given order
+    assert list(zip(a.variant, a.split)) == [("full", "novel_pose"), ("full", "novel_view"),
+                                             ("w/o reg", "novel_pose"), ("w/o reg", "novel_view")]
+    assert set(a.test_views) == {"1"} and set(a.iterations) == {300}
+    assert a.set_index(["variant", "split"]).loc[("full", "novel_view"), "psnr"] == \
+        pytest.approx(22.0 - 1.2)
+    full = a[a.split == "novel_pose"].set_index("variant").loc["full"]
     assert full.psnr == pytest.approx(22.0)  # no refinement, full image
     assert full.hand_psnr == pytest.approx(22.0 - 2.0)  # mean of -3 and -1 offsets
     assert full.train_seconds == pytest.approx(200.0)  # the benchmark, not train_seconds (195)
@@ -152,13 +160,22 @@ def test_report_command_writes_the_page(results_dir, tmp_path):
     assert sw.setting.tolist() == ["sw_it150", "demo"] and read_rgb(plot).shape[0] > 100
     abl_out = tmp_path / "ablations.parquet"
     on = {"regularize": True, "densify": True, "accumulate": True, "pose_dependent": True}
-    variants = {"full": {"variant": "abl_full", **on},
-                "w/o reg": {"variant": "abl_no_reg", **on, "regularize": False}}
+    variants = [{"label": "w/o reg", "iterations": 300, "variant": "abl_no_reg", **on,
+                 "regularize": False},
+                {"label": "full", "iterations": 300, "variant": "abl_full", **on}]
     assert main(["report", "ablations", "--results", str(results_dir), "--scene", "tiny",
                  "--variants-json", json.dumps(variants), "--out", str(abl_out)]) == 0
     a = read_table(abl_out, "ablations")
-    assert a.variant.tolist() == ["full", "w/o reg"]  # the given order, not sorted
-    assert a.regularize.tolist() == [True, False] and a.densify.all()
+    assert a.variant.tolist() == ["w/o reg"] * 2 + ["full"] * 2  # the given order
+    assert a.regularize.tolist() == [False, False, True, True] and a.densify.all()
+    reg_out, reg_plot = tmp_path / "regularizer.parquet", tmp_path / "regularizer.png"
+    scales = [{"scale": 0, "iterations": 300, "variant": "abl_no_reg"},
+              {"scale": 1, "iterations": 300, "variant": "abl_full"}]
+    assert main(["report", "regularizer", "--results", str(results_dir), "--scene", "tiny",
+                 "--variants-json", json.dumps(scales), "--out", str(reg_out),
+                 "--plot", str(reg_plot)]) == 0
+    r = read_table(reg_out, "regularizer_sweep")
+    assert r.scale.tolist() == [0.0, 0.0, 1.0, 1.0] and read_rgb(reg_plot).shape[0] > 100
 
 
 def test_incomplete_sweep_settings_are_refused_by_the_table_schema(results_dir, tmp_path,
@@ -176,15 +193,26 @@ def test_incomplete_sweep_settings_are_refused_by_the_table_schema(results_dir, 
 
 def test_missing_variant_names_the_file(results_dir):
     with pytest.raises(FileNotFoundError, match="abl_nothing/metrics.parquet"):
-        runs.ablation_table(results_dir, "tiny", {"full": "abl_nothing"})
+        runs.ablation_table(results_dir, "tiny",
+                            [{"label": "full", "iterations": 300, "variant": "abl_nothing"}])
 
 
-def test_ssim_finding_says_who_beats_the_full_model():
-    df = pd.DataFrame({"variant": ["full", "w/o reg", "w/o dens"], "ssim": [0.90, 0.93, 0.85]})
+def test_winners_per_budget_and_split_say_who_beats_the_full_model():
+    df = pd.DataFrame({
+        "variant": ["full", "w/o reg", "w/o dens"] * 2, "iterations": 300,
+        "split": ["novel_pose"] * 3 + ["novel_view"] * 3,
+        "psnr": [30.0, 31.0, 29.0, 25.0, 24.0, 24.5], "ssim": [0.90, 0.93, 0.85, 0.80, 0.78, 0.79]})
+    w = runs.winners(df).set_index("split")
+    assert w.loc["novel_pose", "best_ssim"] == "w/o reg"
+    assert w.loc["novel_pose", "full_margin_ssim"] == pytest.approx(-0.03)
+    assert w.loc["novel_view", "best_psnr"] == "full"
+    assert w.loc["novel_view", "full_margin_psnr"] == pytest.approx(0.5)
     text = runs.ssim_finding(df)
-    assert "NOT best" in text and "w/o reg 0.9300 (+0.0300)" in text and "w/o dens" not in text
+    assert "novel_pose at 300 steps: w/o reg beats the full model on SSIM by 0.0300" in text
+    assert "novel_view at 300 steps: the full model is best on SSIM (0.8000, +0.0100" in text
     df.loc[1, "ssim"] = 0.80
-    assert "is best on SSIM (0.9000)" in runs.ssim_finding(df)
+    assert "novel_pose at 300 steps: the full model is best on SSIM (0.9000, +0.0500" in \
+        runs.ssim_finding(df)
     assert "cannot be checked" in runs.ssim_finding(df[df.variant != "full"])
 
 
@@ -197,9 +225,9 @@ def test_report_tables_are_also_written_as_tsv(results_dir, tmp_path):
     assert "stale.tsv" not in files
     assert len(files) == page.count("<table")  # one TSV per table shown
     abl = [f for f in files if f.startswith("ablations_")]
-    assert len(abl) == 1
-    df = pd.read_csv(tables / abl[0], sep="\t")
-    assert df.variant.tolist() == ["full", "w/o regularisation"]
+    assert len(abl) == 3  # winners per split, every row, the regulariser's sweep
+    df = pd.read_csv(tables / abl[1], sep="\t")
+    assert df.variant.tolist() == ["full", "full", "w/o regularisation", "w/o regularisation"]
     assert df.psnr.iloc[0] == pytest.approx(22.0)
 
 

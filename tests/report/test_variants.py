@@ -67,7 +67,7 @@ def test_ablation_source_row_is_the_other_source_or_absent():
 
 
 def test_sweep_points_change_one_setting_of_the_centre():
-    plan = sweep_plan({"train": {"threads": 1}},
+    plan = sweep_plan({"train": {"log_every": 3}},
                       {"iterations": [50, 90], "resolution": [64], "max_points": [300]})
     names = [p.name for p in plan]
     assert names == ["sw_base", "sw_iterations50", "sw_iterations90", "sw_resolution64",
@@ -78,7 +78,7 @@ def test_sweep_points_change_one_setting_of_the_centre():
     for p in plan[1:]:
         cfg = resolve(p.overrides)
         assert _diff(centre, cfg) == [paths[p.values["swept"]]], p.name
-        assert cfg["train"]["threads"] == 1
+        assert cfg["train"]["log_every"] == 3  # the base is under every point
     v = sweep_values(resolve(plan[3].overrides), native_size=256)
     assert v == {"iterations": centre["train"]["iterations"], "resolution": 64,
                  "max_points": centre["strategy"]["max_points"]}

@@ -4,17 +4,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tiny_avatar import FAST, SIZE, rig_cameras
 
 from signsplat.body.keypoints import WholeBodyRegressor
 from signsplat.io.video import VideoWriter, iter_frames
-from signsplat.stitch.baseline2d import (LEFT_HAND_BONES, METRIC_BONES, SKELETON_BONES,
-                                         baseline_keypoints, draw_skeleton,
-                                         interpolate_transition, project_keypoints,
-                                         render_baseline)
+from signsplat.motion.stitching import TRANSITION, stitch_frames
+from signsplat.stitch.animate import Identity
+from signsplat.stitch.baseline2d import (
+    LEFT_HAND_BONES,
+    METRIC_BONES,
+    SKELETON_BONES,
+    baseline_keypoints,
+    draw_skeleton,
+    interpolate_transition,
+    project_keypoints,
+    render_baseline,
+)
 from signsplat.stitch.evaluate import BoneStats
-from signsplat.stitch.motion import TRANSITION, stitch_frames
-from signsplat.stitch.render import Identity
-from test_render import FAST, SIZE, rig_cameras, tiny_body, tiny_files  # noqa: F401 (fixtures)
 
 IDENT = Identity(np.zeros(10, np.float32))
 

@@ -5,9 +5,10 @@ import pandas as pd
 import pytest
 
 from signsplat.errors import InputError
+from signsplat.motion import clips as C
+from signsplat.motion import stitching as M
+from signsplat.motion.clips import GlossClip, load_gloss_library
 from signsplat.stitch import library as L
-from signsplat.stitch import motion as M
-from signsplat.synth.glosses import GlossClip, load_gloss_library
 
 
 def _means():
@@ -99,7 +100,7 @@ def test_import_fitted_table_and_write_library(tmp_path):
     order = df.sort_values("frame")
     np.testing.assert_allclose(clips["COME"].poses["body_pose"],
                                np.stack(order.body_pose.iloc[6:12]), atol=1e-7)
-    path = L.write_library(clips.values(), tmp_path / "imported.parquet")
+    path = C.write_library(clips.values(), tmp_path / "imported.parquet")
     back = load_gloss_library(path)
     assert back["GO"].source == "fit of video.mp4" and back["GO"].num_frames == 6
     np.testing.assert_allclose(back["GO"].poses["transl"], clips["GO"].poses["transl"])

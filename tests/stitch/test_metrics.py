@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from signsplat.motion import stitching as M
+from signsplat.motion.clips import GlossClip
 from signsplat.stitch import metrics as X
-from signsplat.stitch import motion as M
-from signsplat.synth.glosses import GlossClip
 
 
 def _const(name, angle_deg, n=6):

@@ -6,7 +6,7 @@ import pytest
 
 from signsplat.cli import main
 from signsplat.io.tables import read_table
-from signsplat.stitch.library import write_library
+from signsplat.motion.clips import write_library
 
 
 def test_sign_command_writes_plan_and_track(tmp_path, gloss_library):

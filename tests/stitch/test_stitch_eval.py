@@ -4,18 +4,24 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tiny_avatar import FAST, CountingWriter, rig_cameras, tiny_renderer
 
 from signsplat.body.keypoints import WholeBodyRegressor
 from signsplat.io.tables import read_table
+from signsplat.motion.stitching import stitch_clips, stitch_frames
+from signsplat.stitch.animate import RenderStats, render_track
 from signsplat.stitch.baseline2d import METRIC_BONES, baseline_keypoints
-from signsplat.stitch.evaluate import (FACE_BONES, POSE_BONES, SMPLX_BONES, BoneStats,
-                                       StitchObserver, sentence_eval, summary_lines,
-                                       write_stitch_eval)
+from signsplat.stitch.evaluate import (
+    FACE_BONES,
+    POSE_BONES,
+    SMPLX_BONES,
+    BoneStats,
+    StitchObserver,
+    sentence_eval,
+    summary_lines,
+    write_stitch_eval,
+)
 from signsplat.stitch.metrics import join_metrics
-from signsplat.stitch.motion import stitch_clips, stitch_frames
-from signsplat.stitch.render import RenderStats, render_track
-from test_render import (FAST, CountingWriter, rig_cameras, tiny_body,  # noqa: F401
-                         tiny_files, tiny_renderer)
 
 
 def test_bone_stats_against_direct_computation():

@@ -5,6 +5,7 @@ import pytest
 
 from signsplat.body.hand_limits import within_limits
 from signsplat.io.tables import TableError
+from signsplat.motion import clips as C
 from signsplat.synth import _gloss_body as gb
 from signsplat.synth import glosses as G
 
@@ -30,10 +31,10 @@ def test_library_size_and_kinds(library):
 
 
 def test_tracks_have_table_layout_and_durations(library):
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     for clip in clips.values():
         n = clip.num_frames
-        for block, k in G.BLOCK_SIZES.items():
+        for block, k in C.BLOCK_SIZES.items():
             assert clip.poses[block].shape == (n, k), (clip.gloss, block)
             assert np.isfinite(clip.poses[block]).all()
         dur = n / clip.fps
@@ -45,7 +46,7 @@ def test_tracks_have_table_layout_and_durations(library):
 
 
 def test_every_hand_pose_within_limits(library):
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     left = np.concatenate([c.poses["left_hand_pose"] for c in clips.values()])
     right = np.concatenate([c.poses["right_hand_pose"] for c in clips.values()])
     assert within_limits(left, "left").all()
@@ -53,7 +54,7 @@ def test_every_hand_pose_within_limits(library):
 
 
 def test_signs_move_and_use_non_manual_features(library):
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     for clip in clips.values():
         body = clip.poses["body_pose"]
         assert np.abs(body[-1] - body[0]).max() > 1e-3 or np.ptp(body, axis=0).max() > 1e-2
@@ -113,14 +114,14 @@ def test_fingertip_contact_lands_on_location():
 
 
 def test_write_and_load_round_trip(tmp_path, library, gloss_library_path):
-    clips = G.load_gloss_library(gloss_library_path)  # written by write_gloss_library(seed=0)
+    clips = C.load_gloss_library(gloss_library_path)  # written by write_gloss_library(seed=0)
     df = library
     assert set(clips) == set(df.gloss)
     row = df[df.gloss == "BOOK"].iloc[0]
     np.testing.assert_array_equal(clips["BOOK"].poses["body_pose"].reshape(-1), row.body_pose)
     assert clips["A"].kind == "letter" and clips["A"].words == ("a",)
     with pytest.raises(TableError):
-        G.load_gloss_library(tmp_path / "missing.parquet")
+        C.load_gloss_library(tmp_path / "missing.parquet")
 
 
 def test_handshape_names_and_movement_errors():
@@ -140,7 +141,7 @@ def test_proxy_lbs_agrees_with_gloss_kinematics(proxy_body_path, library):
     from signsplat.body.model import BodyModel
 
     model = BodyModel.from_file(proxy_body_path, dtype=torch.float64)
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     pelvis = model().joints[0, 0].numpy()
     worst = 0.0
     for name in ("HELLO", "BOOK", "MOTHER", "WHERE", "A", "M"):
@@ -203,7 +204,7 @@ def test_hands_stay_outside_head_and_torso(proxy_body_path, library):
     is_core = model.lbs_weights.numpy()[:, core].sum(1) > 0.95
     hands = np.isin(labels, [PART_LEFT_HAND, PART_RIGHT_HAND])
     faces = model.faces.numpy()
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     for name in ("THANK-YOU", "WHO", "NAME", "SCHOOL", "DEAF", "LIKE", "ME", "EAT"):
         clip = clips[name]
         idx = np.arange(0, clip.num_frames, 4)
@@ -223,7 +224,7 @@ def test_tracks_are_smooth(library):
     (the IK keeps the elbow swivel and forearm twist continuous)."""
     from scipy.spatial.transform import Rotation
 
-    clips = G.clips_from_table(library)
+    clips = C.clips_from_table(library)
     for clip in clips.values():
         for block in ("body_pose", "left_hand_pose", "right_hand_pose"):
             r = clip.poses[block].astype(np.float64).reshape(clip.num_frames, -1, 3)

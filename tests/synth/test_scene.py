@@ -99,7 +99,7 @@ def test_default_scenes_frame_the_signing_space():
 
 
 def test_gloss_motion_is_stitched_with_holds_and_smooth_transitions(gloss_library_path):
-    from signsplat.synth.glosses import load_gloss_library
+    from signsplat.motion.clips import load_gloss_library
 
     lib = load_gloss_library(gloss_library_path)
     s = spec(motion={"glosses": ["HELLO", "BOOK"], "hold_frames": 2, "transition_frames": 4},

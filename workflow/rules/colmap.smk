@@ -3,7 +3,6 @@
 # Synthetic multi-view scenes only: errors are measured against the simulator's cameras.
 
 COLMAP_CFG = config.get("colmap", {})
-COLMAP_SCENES = [s for s in SCENES if num_views(s) > 1]
 
 
 rule colmap_compare:
@@ -23,9 +22,7 @@ rule colmap_compare:
         f"{RESULTS}/_logs/{{scene}}/colmap_compare.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/colmap_compare.tsv"
-    # One thread: COLMAP's results are then repeatable run to run (studio6 sequence, known
-    # intrinsics: twice 16 images / 275 points / 3.7 deg, 18 s), with two threads they varied
-    # (254 points / 3.8 deg, 95 / 18.6 deg, 326 / 3.0 deg in three runs, 13-15 s).
+    # One thread: COLMAP's results are then repeatable run to run (with two they varied).
     threads: 1
     resources:
         mem_mb=4000,
@@ -36,5 +33,3 @@ rule colmap_compare:
         " --config-json {params.cfg:q} --out {output.table:q} --ply {output.ply:q}"
         " --ply-dir {output.runs:q} --threads {threads} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.colmap_compare.output.table, scene=COLMAP_SCENES))

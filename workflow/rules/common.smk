@@ -5,7 +5,8 @@ import os
 import sys
 from pathlib import Path
 
-from signsplat.config import load_sequences, validate
+from signsplat.config import validate
+from signsplat.plan import plan
 
 # The config as the user gave it (files and --config), before the schema fills its defaults
 # in: a section with named profiles (avatar) puts the profile under the user's own values
@@ -14,22 +15,30 @@ USER_CONFIG = copy.deepcopy(config)
 validate(config, "config.schema.yaml", "config/config.yaml")
 
 PY = sys.executable
-# GNU OpenMP's default spin-wait makes torch's and Numba's thread pools fight over the cores
-# (2 threads ran 2-3x slower than 1 on a 2-core machine); short spins for every stage.
-os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 RESULTS = config["results"]
-# Every sequence of the run (sheet rows + config `scenes`): name -> row (see load_sequences).
-SEQUENCES = load_sequences(config)
-# Synthetic sequences: name -> validated scene spec.
-SCENES = {name: row["scene"] for name, row in SEQUENCES.items() if row["source"] == "synthetic"}
-VIDEOS = {name: row for name, row in SEQUENCES.items() if row["source"] == "video"}
+# Every stage with a GPU path gets `--device {DEVICE}`; every stage `--threads {threads}`, its
+# rule's own threads (the one place a thread count is set; a profile's set-threads changes it).
+DEVICE = config["device"]
+# What this run does (signsplat.plan): sequences, the default scene, avatar variants.
+PLAN = plan(config, USER_CONFIG)
+SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)
+SCENES = PLAN.scenes  # synthetic sequences: name -> validated scene spec
+VIDEOS = PLAN.videos  # footage: name -> sheet row
 
-# Stages append the files `rule all` asks for; the Snakefile's `rule all` reads them.
-FINAL_OUTPUTS = []
 
-
-def final_outputs():
-    return FINAL_OUTPUTS
+def final_outputs(report=True):
+    """What `rule all` asks for: every stage's outputs over the run's sequences (and the
+    report, which takes all the others as its inputs)."""
+    seqs = list(SEQUENCES)
+    out = expand(rules.simulate.output.frames, scene=list(SCENES))
+    out += expand(rules.extract_frames.output.frames, scene=list(VIDEOS))
+    out += expand(rules.detect_keypoints.output.keypoints, scene=seqs)
+    out += expand(rules.perception_eval.output[0], scene=list(SCENES))
+    out += expand(rules.fit_smplx.output.eval, scene=seqs)
+    out += expand(rules.colmap_compare.output.table, scene=PLAN.multiview_scenes)
+    out += expand(AVATAR_EVAL_FILES, scene=seqs, variant=DEFAULT_VARIANTS)
+    out += stitch_outputs()
+    return out + [rules.report.output.html] if report else out
 
 
 def as_json(obj):
@@ -39,10 +48,6 @@ def as_json(obj):
 
 def scene_spec(wildcards):
     return as_json(SCENES[wildcards.scene])
-
-
-def num_views(scene):
-    return SEQUENCES[scene]["num_views"]
 
 
 def input_dir(scene):

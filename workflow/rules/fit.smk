@@ -40,7 +40,7 @@ def fit_inputs(wildcards):
 def fit_config(wildcards):
     """The fit section without the other mode's settings: a change to the multi-view stages
     does not re-run the single-view fits, nor the other way round."""
-    return as_json(mode_config(FIT_CFG, num_views(wildcards.scene)))
+    return as_json(mode_config(FIT_CFG, PLAN.num_views(wildcards.scene)))
 
 
 def fit_extra_args(wildcards, input):
@@ -87,5 +87,3 @@ rule fit_smplx:
         " --num-expression {params.expr} --device {params.device} --threads {threads}"
         " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.fit_smplx.output.eval, scene=list(SEQUENCES)))

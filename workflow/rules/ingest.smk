@@ -17,5 +17,3 @@ rule extract_frames:
         "{PY} -m signsplat extract-frames --sequence-json {params.seq:q}"
         " --out {RESULTS}/{wildcards.scene}/frames > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.extract_frames.output.frames, scene=list(VIDEOS)))

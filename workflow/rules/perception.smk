@@ -35,7 +35,8 @@ rule segment:
         runtime=30,
     shell:
         "{PY} -m signsplat segment --frames {input.frames} --out-dir {params.out}"
-        " --config-json {params.cfg:q} --threads {threads} --timings {output.timings}"
+        " --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
+        " --timings {output.timings}"
         " > {log} 2>&1"
 
 
@@ -60,6 +61,7 @@ rule detect_keypoints:
     shell:
         "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
         " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
+        " --device {DEVICE}"
         " --timings {output.timings} > {log} 2>&1"
 
 
@@ -87,14 +89,36 @@ rule perception_eval:
         runtime=15,
     shell:
         "{PY} -m signsplat perception-eval --sim-dir {params.sim} --perception-dir {params.out}"
-        " --out {output} --config-json {params.cfg:q} --threads {threads}"
+        " --out {output} --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
+
+
+rule simulate_training_set:
+    input:
+        body=rules.body_model.output[0],
+        glosses=rules.gloss_library.output[0],
+    output:
+        directory(f"{RESULTS}/_train/perception/scenes"),
+    params:
+        scenes=PERCEPTION["train"]["scenes"],
+        seed=PERCEPTION["train"]["seed"],
+    log:
+        f"{RESULTS}/_logs/simulate_training_set.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/simulate_training_set.tsv"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    shell:
+        "{PY} -m signsplat simulate-training-set --count {params.scenes} --seed {params.seed}"
+        " --body {input.body} --glosses {input.glosses} --out-dir {output} --threads {threads}"
+        " --no-progress > {log} 2>&1"
 
 
 rule train_detectors:
     input:
-        body=rules.body_model.output[0],
-        glosses=rules.gloss_library.output[0],
+        scenes=rules.simulate_training_set.output[0],
     output:
         segmenter=f"{RESULTS}/_train/perception/models/segmenter.onnx",
         keypoints=f"{RESULTS}/_train/perception/models/keypoints.onnx",
@@ -111,10 +135,7 @@ rule train_detectors:
         mem_mb=12000,
         runtime=240,
     shell:
-        "{PY} -m signsplat train-detectors --body {input.body} --glosses {input.glosses}"
+        "{PY} -m signsplat train-detectors --sim-dirs {input.scenes}/*/sim"
         " --work {params.work} --out-dir {params.work}/models --config-json {params.cfg:q}"
         " --threads {threads} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.detect_keypoints.output.keypoints, scene=list(SEQUENCES)))
-FINAL_OUTPUTS.extend(expand(rules.perception_eval.output[0], scene=list(SCENES)))

@@ -3,12 +3,11 @@
 # other stages put in `all`. Also the two study targets (not part of `all`):
 #   snakemake ablations   -> {results}/{scene}/ablations.parquet (paper Table 5)
 #   snakemake sweep       -> {results}/{scene}/sweep.parquet + sweep.png (accuracy vs time)
-# Their variants are declared in avatar.smk (ABLATIONS, SWEEP); seconds come from the
-# train_avatar / evaluate_avatar benchmark files. No science here.
+# Their variants are planned by signsplat.plan (PLAN.ablations, PLAN.sweep); seconds come from
+# the train_avatar / evaluate_avatar benchmark files. No science here.
 
-from signsplat.report.variants import switch_values
+from signsplat.report.variants import ablation_columns
 
-REPORT_INPUTS = list(FINAL_OUTPUTS)
 REPORT_HTML = config["report"]["html"]
 REPORT_TABLES = os.path.join(os.path.dirname(REPORT_HTML), "tables")  # TSV copies
 
@@ -20,25 +19,16 @@ def variant_files(scene, variants):
     }
 
 
-def ablation_variants_json():
-    """label -> the avatar variant and its switches (columns of ablations.parquet)."""
-    out = {}
-    for label, v in ABLATIONS.items():
-        switches = switch_values(avatar_variant_config(v["variant"]))
-        switches.pop("smplx_source")  # read from the variant's metrics (what it trained on)
-        out[label] = {"variant": v["variant"], **switches}
-    return json.dumps(out)  # not as_json: the row order (full first) is kept
-
-
 rule ablation_table:
     input:
-        **variant_files(ABLATION_SCENE, sorted({v["variant"] for v in ABLATIONS.values()})),
+        **variant_files(PLAN.ablation_scene, sorted({r["variant"] for r in PLAN.ablations})),
     output:
         table=f"{RESULTS}/{{scene}}/ablations.parquet",
         tsv=report(f"{RESULTS}/{{scene}}/ablations.tsv", caption="../report/ablations.rst",
                    category="6. Ablations"),
     params:
-        variants=ablation_variants_json(),
+        # not as_json: the row order (full first) is kept
+        variants=json.dumps(ablation_columns(PLAN.ablations, PLAN.variants)),
     log:
         f"{RESULTS}/_logs/{{scene}}/ablation_table.log",
     benchmark:
@@ -53,9 +43,34 @@ rule ablation_table:
         " > {log} 2>&1"
 
 
+rule regularizer_table:
+    input:
+        **variant_files(PLAN.ablation_scene, sorted({r["variant"] for r in PLAN.regularizer})),
+    output:
+        table=f"{RESULTS}/{{scene}}/regularizer.parquet",
+        tsv=report(f"{RESULTS}/{{scene}}/regularizer.tsv", caption="../report/regularizer.rst",
+                   category="6. Ablations"),
+        plot=report(f"{RESULTS}/{{scene}}/regularizer.png", caption="../report/regularizer.rst",
+                    category="6. Ablations"),
+    params:
+        variants=as_json(PLAN.regularizer),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/regularizer_table.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/regularizer_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    shell:
+        "{PY} -m signsplat report regularizer --results {RESULTS} --scene {wildcards.scene}"
+        " --variants-json {params.variants:q} --out {output.table:q} --plot {output.plot:q}"
+        " --tsv {output.tsv:q} > {log} 2>&1"
+
+
 rule sweep_table:
     input:
-        **variant_files(SWEEP_SCENE, list(SWEEP)),
+        **variant_files(PLAN.sweep_scene, list(PLAN.sweep)),
     output:
         table=f"{RESULTS}/{{scene}}/sweep.parquet",
         tsv=report(f"{RESULTS}/{{scene}}/sweep.tsv", caption="../report/sweep_table.rst",
@@ -63,7 +78,7 @@ rule sweep_table:
         plot=report(f"{RESULTS}/{{scene}}/sweep.png", caption="../report/sweep.rst",
                     category="7. Accuracy versus time"),
     params:
-        settings=as_json(SWEEP),
+        settings=as_json(PLAN.sweep),
     log:
         f"{RESULTS}/_logs/{{scene}}/sweep_table.log",
     benchmark:
@@ -81,23 +96,26 @@ rule sweep_table:
 rule ablations:
     localrule: True
     input:
-        expand(rules.ablation_table.output, scene=ABLATION_SCENE),
+        expand(rules.ablation_table.output, scene=PLAN.ablation_scene),
+        expand(rules.regularizer_table.output, scene=PLAN.ablation_scene) if PLAN.regularizer
+        else [],
 
 
 rule sweep:
     localrule: True
     input:
-        expand(rules.sweep_table.output, scene=SWEEP_SCENE),
+        expand(rules.sweep_table.output, scene=PLAN.sweep_scene),
 
 
 def report_inputs(wildcards):
     """Everything in `all`, plus the study tables and the quality avatar once they exist: a
     later run of `all` after `snakemake ablations`, `sweep` or `quality` rewrites the report
     with them."""
-    study = expand(rules.ablation_table.output.table, scene=ABLATION_SCENE)
-    study += expand(rules.sweep_table.output.table, scene=SWEEP_SCENE)
+    study = expand(rules.ablation_table.output.table, scene=PLAN.ablation_scene)
+    study += expand(rules.regularizer_table.output.table, scene=PLAN.ablation_scene)
+    study += expand(rules.sweep_table.output.table, scene=PLAN.sweep_scene)
     study += QUALITY_OUTPUTS
-    return REPORT_INPUTS + [f for f in study if os.path.exists(f)]
+    return final_outputs(report=False) + [f for f in study if os.path.exists(f)]
 
 
 rule report:
@@ -119,5 +137,3 @@ rule report:
         "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
         " --tables {output.tables:q} > {log} 2>&1"
 
-
-FINAL_OUTPUTS.append(rules.report.output.html)

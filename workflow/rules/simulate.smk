@@ -37,5 +37,3 @@ rule simulate:
         " --glosses {input.glosses:q} --out {params.out:q} --threads {threads}"
         " > {log} 2>&1"
 
-
-FINAL_OUTPUTS.extend(expand(rules.simulate.output.frames, scene=list(SCENES)))

@@ -13,8 +13,8 @@ STITCH_CFG = validate(copy.deepcopy(config.get("stitch", {})), "stages/stitch.sc
 STITCH_VARIANT = "demo"
 # sentence id (output stem) -> sentence
 STITCH_SENTENCES = {sentence_id(s): s for s in STITCH_CFG["sentences"]}
-# the default multi-view scene: the first synthetic sequence with more than one camera
-STITCH_SCENES = [n for n in SCENES if num_views(n) > 1][:1] or list(SCENES)[:1]
+# the default multi-view scene (PLAN.default_scene), when it is synthetic
+STITCH_SCENES = [s for s in [PLAN.default_scene] if s in SCENES]
 
 
 def stitch_files(suffix):
@@ -58,12 +58,14 @@ rule stitch_video:
         "{PY} -m signsplat sign {params.sentences} {params.ids} --library {input.library:q}"
         " --out {params.out:q} --config-json {params.cfg:q} --avatar {input.checkpoint:q}"
         " --body {input.body:q} --cameras {input.cameras:q} --threads {threads}"
+        " --device {DEVICE}"
         " --eval {output.eval:q} > {log} 2>&1"
 
 
-if STITCH_SENTENCES:
-    FINAL_OUTPUTS.extend(expand(rules.stitch_video.output.eval, scene=STITCH_SCENES))
-    FINAL_OUTPUTS.extend(
-        expand(f"{RESULTS}/{{scene}}/stitched/{{id}}.mp4", scene=STITCH_SCENES,
-               id=list(STITCH_SENTENCES))
-    )
+def stitch_outputs():
+    """The stitched videos and their table (in `all`), none without sentences."""
+    if not STITCH_SENTENCES:
+        return []
+    return expand(rules.stitch_video.output.eval, scene=STITCH_SCENES) + expand(
+        f"{RESULTS}/{{scene}}/stitched/{{id}}.mp4", scene=STITCH_SCENES,
+        id=list(STITCH_SENTENCES))

@@ -1,6 +1,6 @@
 """Render a stitched SMPL-X track with a trained avatar, streamed into an MP4 (issue 7).
 
-The track's frames (:class:`signsplat.stitch.motion.Frame`) are posed in small batches by the
+The track's frames (:class:`signsplat.motion.stitching.Frame`) are posed in small batches by the
 body model and the avatar (:class:`signsplat.avatar.model.AvatarModel`), rasterized one by one
 from one camera (``signsplat.render.rasterization``) and written straight into a
 :class:`signsplat.io.video.VideoWriter`: memory holds one batch of frames, never the video.
@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from signsplat.errors import InputError
-from signsplat.stitch.motion import FRAME_BLOCKS, Frame, mean_rotation
+from signsplat.motion.stitching import FRAME_BLOCKS, Frame, mean_rotation
 
 #: Blocks passed to the body model (``label``/``gloss_index`` are not parameters).
 BODY_BLOCKS = tuple(FRAME_BLOCKS)
@@ -269,7 +269,7 @@ class AvatarRenderer:
                         device: torch.device | str = "cpu") -> "AvatarRenderer":
         """Load ``checkpoint.pt`` of ``signsplat train-avatar``. ``placement``: 'avatar'
         (training placement) or 'track'."""
-        from signsplat.avatar.train import load_avatar
+        from signsplat.avatar import load_avatar
 
         if placement not in ("avatar", "track"):
             raise ValueError(f"placement must be 'avatar' or 'track', got {placement!r}")
@@ -363,7 +363,7 @@ class RenderStats:
 
 def render_track(frames: Iterable[Frame], renderer: AvatarRenderer, writer,
                  batch: int = 4, on_batch: Callable | None = None) -> RenderStats:
-    """Render ``frames`` (any iterable, e.g. :func:`~signsplat.stitch.motion.stitch_frames`)
+    """Render ``frames`` (any iterable, e.g. :func:`~signsplat.motion.stitching.stitch_frames`)
     into ``writer`` (``write((H, W, 3) uint8)``), ``batch`` frames at a time.
 
     ``on_batch(frames, body_output)`` is called after each batch (e.g. to accumulate bone

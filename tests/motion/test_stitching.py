@@ -9,8 +9,8 @@ import roma
 import torch
 from scipy.spatial.transform import Rotation, Slerp
 
-from signsplat.stitch import motion as M
-from signsplat.synth.glosses import GlossClip
+from signsplat.motion import stitching as M
+from signsplat.motion.clips import GlossClip
 
 
 def _clip(name, body, kind="sign", n=3, expr=None, fps=25.0, **extra):

@@ -36,7 +36,7 @@ import roma
 import torch
 
 from signsplat.io.atomic import atomic_path
-from signsplat.synth.glosses import GlossClip
+from signsplat.motion.clips import GlossClip
 
 #: Rotation blocks (axis-angle, 3 values per joint) that are SLERPed.
 ROTATION_BLOCKS = ("body_pose", "jaw_pose", "leye_pose", "reye_pose", "left_hand_pose",

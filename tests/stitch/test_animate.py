@@ -2,164 +2,36 @@
 
 The avatar is tiny and untrained (an icosphere 'body' file with the SMPL-X joint layout, one
 Gaussian per vertex, random colours) and images are 32 px, so the module runs in seconds.
-The helpers here are shared with test_baseline2d.py and test_stitch_eval.py.
+The tiny avatar and its helpers are in tiny_avatar.py and conftest.py.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import tracemalloc
 
 import numpy as np
-import pandas as pd
 import pytest
 import torch
+from tiny_avatar import (
+    FAST,
+    SIZE,
+    CountingWriter,
+    rig_cameras,
+    tiny_renderer,
+    write_cameras,
+)
 
-from signsplat.avatar.config import avatar_config
-from signsplat.avatar.data import SceneData
-from signsplat.avatar.train import AvatarTrainer, build_model
-from signsplat.body import joints as J
-from signsplat.body.model import BodyModel
-from signsplat.body.model_file import write_model_file
-from signsplat.io.tables import write_table
 from signsplat.io.video import VideoWriter, iter_frames
-from signsplat.stitch.motion import StitchConfig, stitch_clips, stitch_frames
-from signsplat.stitch.render import (AvatarRenderer, Camera, Identity, batch_params,
-                                     choose_camera, front_camera, load_cameras, look_at,
-                                     render_track)
-
-SIZE = 32
-AVATAR_CFG = {
-    "upsample": {"max_rounds": 0},
-    "model": {"hidden": 8, "sh_degree": 0,
-              "scale_max": {"body": 0.08, "head": 0.06, "hands": 0.05}},
-    "train": {"iterations": 1, "accumulate_poses": 1, "threads": 1, "log_every": 1,
-              "smplx_source": "ground_truth", "test_interval": 100, "test_offset": 99},
-}
-KP_NAMES = ("nose", "leye", "reye", "lear", "rear", "LBigToe", "LSmallToe", "LHeel", "RBigToe",
-            "RSmallToe", "RHeel") + tuple(f"{s}{f}" for s in "lr"
-                                          for f in ("thumb", "index", "middle", "ring", "pinky"))
-FAST = StitchConfig(min_transition=3, max_transition=6, hold_start=1, hold_end=1)
-
-
-def tiny_body_arrays(seed: int = 0) -> dict[str, np.ndarray]:
-    """An SMPL-X-layout body: icosphere (162 vertices, radius 0.3 m, centre y = 1) with 55
-    joints inside, LBS weights by distance, shape directions (no expression directions)."""
-    import trimesh
-
-    g = np.random.default_rng(seed)
-    sph = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
-    v = np.asarray(sph.vertices) + [0.0, 1.0, 0.0]
-    n = len(v)
-    joints = g.normal(0, 0.12, (55, 3)) + [0.0, 1.0, 0.0]
-    joints[list(J.LEFT_HAND_JOINTS), 0] = 0.25
-    joints[list(J.RIGHT_HAND_JOINTS), 0] = -0.25
-    d = np.linalg.norm(v[None] - joints[:, None], axis=-1)  # (55, V)
-    reg = np.exp(-d / 0.03)
-    reg /= reg.sum(1, keepdims=True)
-    w = np.exp(-d.T / 0.05)
-    w /= w.sum(1, keepdims=True)
-    part = np.full(n, J.PART_BODY)
-    part[v[:, 1] > 1.2] = J.PART_HEAD
-    part[v[:, 0] > 0.18] = J.PART_LEFT_HAND
-    part[v[:, 0] < -0.18] = J.PART_RIGHT_HAND
-    shapedirs = np.zeros((n, 3, 20))
-    shapedirs[..., :10] = g.normal(0, 0.002, (n, 3, 10))
-    return {
-        "v_template": v, "f": np.asarray(sph.faces), "shapedirs": shapedirs,
-        "posedirs": np.zeros((n, 3, 486)), "J_regressor": reg, "weights": w,
-        "kintree_table": np.stack([np.array(J.SMPLX_PARENTS), np.arange(55)]),
-        "hands_componentsl": np.eye(45), "hands_componentsr": np.eye(45),
-        "hands_meanl": np.zeros(45), "hands_meanr": np.zeros(45),
-        "lmk_faces_idx": np.arange(51) % len(sph.faces), "lmk_bary_coords": np.full((51, 3), 1 / 3),
-        "part_labels": part, "num_shape_dirs": np.array(10), "num_expression_dirs": np.array(10),
-        "kp_vertex_names": np.array(KP_NAMES), "kp_vertex_ids": g.integers(0, n, len(KP_NAMES)),
-    }
-
-
-def rig_cameras(n: int = 3, size: int = SIZE, distance: float = 1.6) -> list[Camera]:
-    """Cameras on an arc in front of the body (+z), looking at (0, 1, 0)."""
-    cams = []
-    for i, a in enumerate(np.linspace(-0.6, 0.6, n)):
-        eye = np.array([distance * math.sin(a), 1.0, distance * math.cos(a)])
-        f = size * 1.2
-        K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1]])
-        cams.append(Camera(look_at(eye, [0.0, 1.0, 0.0]), K, size, size, f"view{i}"))
-    return cams
-
-
-def write_cameras(path, cams: list[Camera]):
-    rows = [dict(scene="tiny", view=i, frame=-1, width=c.width, height=c.height,
-                 fx=c.K[0, 0], fy=c.K[1, 1], cx=c.K[0, 2], cy=c.K[1, 2],
-                 R=c.viewmat[:3, :3].reshape(-1).tolist(), t=c.viewmat[:3, 3].tolist())
-            for i, c in enumerate(cams)]
-    df = pd.DataFrame(rows).astype({"view": "int32", "frame": "int32", "width": "int32",
-                                    "height": "int32"})
-    return write_table(df, path, "cameras")
-
-
-@pytest.fixture(scope="session")
-def tiny_files(tmp_path_factory):
-    """(body .npz, cameras table, checkpoint of an untrained avatar with random colours, as
-    ``signsplat train-avatar`` writes it)."""
-    root = tmp_path_factory.mktemp("tiny_avatar")
-    body_path = write_model_file(root / "body.npz", tiny_body_arrays())
-    body = BodyModel.from_file(body_path)
-    cams = rig_cameras()
-    cam_path = write_cameras(root / "cameras.parquet", cams)
-    g = torch.Generator().manual_seed(0)
-    smplx = {k: torch.zeros(3, n) for k, n in J.PARAM_BLOCKS}
-    smplx["body_pose"] = torch.randn(3, 63, generator=g) * 0.1
-    smplx["transl"][:, 2] = 0.05
-    images = (torch.rand(len(cams), 3, SIZE, SIZE, 3, generator=g) * 255).to(torch.uint8)
-    data = SceneData("tiny", np.arange(3), np.arange(len(cams)), images,
-                     torch.full((len(cams), 3, SIZE, SIZE), 255, dtype=torch.uint8),
-                     torch.tensor(np.stack([c.viewmat for c in cams]), dtype=torch.float32),
-                     torch.stack([c.raster_K() for c in cams]), smplx)
-    trainer = AvatarTrainer(body, data, avatar_config(AVATAR_CFG))
-    with torch.no_grad():
-        trainer.model.sh_dc.normal_(0, 1.5, generator=g)
-    ckpt = trainer.save_checkpoint(root / "checkpoint.pt")
-    return body_path, cam_path, ckpt
-
-
-@pytest.fixture(scope="session")
-def tiny_body(tiny_files):
-    return BodyModel.from_file(tiny_files[0])
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
-
-
-def tiny_renderer(body, camera=None, placement="avatar", ckpt=None) -> AvatarRenderer:
-    if ckpt is not None:
-        return AvatarRenderer.from_checkpoint(ckpt, body, camera or rig_cameras()[1],
-                                              placement=placement, backend="cpu")
-    model = build_model(body, torch.zeros(1, 10), avatar_config(AVATAR_CFG))
-    with torch.no_grad():
-        model.sh_dc.normal_(0, 1.5, generator=torch.Generator().manual_seed(1))
-    return AvatarRenderer(model, body, Identity(np.zeros(10, np.float32)),
-                          camera or rig_cameras()[1], 0, backend="cpu")
-
-
-class CountingWriter:
-    """VideoWriter stand-in: checks and counts frames, keeps a checksum, holds nothing."""
-
-    def __init__(self):
-        self.frames = 0
-        self.checksum = 0
-        self.distinct = set()
-
-    def write(self, frame):
-        assert frame.dtype == np.uint8 and frame.shape == (SIZE, SIZE, 3)
-        self.frames += 1
-        self.distinct.add(hash(frame.tobytes()))
+from signsplat.motion.stitching import stitch_clips, stitch_frames
+from signsplat.stitch.animate import (
+    Identity,
+    batch_params,
+    choose_camera,
+    front_camera,
+    load_cameras,
+    render_track,
+)
 
 
 # ------------------------------------------------------------------------------ cameras
@@ -284,7 +156,7 @@ def test_long_sentence_memory_stays_flat(tiny_body, gloss_library):
 # ------------------------------------------------------------------------------ CLI
 def _sign(tmp_path, tiny_files, gloss_library, sentences, *extra, ids=None):
     from signsplat.cli import main
-    from signsplat.stitch.library import write_library
+    from signsplat.motion.clips import write_library
 
     lib = tmp_path / "glosses.parquet"
     if not lib.exists():

@@ -1,0 +1,53 @@
+"""Session-wide assets shared by every test package: the procedural proxy body model and the
+synthetic gloss library, each built once per test session."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def proxy_body_path(tmp_path_factory):
+    """The proxy SMPL-X body (seed 0) written once as an official-layout ``.npz``."""
+    from signsplat.body.proxy import write_proxy_model
+
+    path = tmp_path_factory.mktemp("body_assets") / "body.npz"
+    write_proxy_model(path, seed=0)
+    return path
+
+
+@pytest.fixture(scope="session")
+def gloss_library_path(tmp_path_factory):
+    """The synthetic gloss library (seed 0, 25 fps) written once as a Parquet table."""
+    from signsplat.synth.glosses import write_gloss_library
+
+    path = tmp_path_factory.mktemp("gloss_assets") / "glosses.parquet"
+    write_gloss_library(path, seed=0, fps=25.0)
+    return path
+
+
+@pytest.fixture(scope="session")
+def gloss_library(gloss_library_path):
+    """The synthetic library as clips, read once (tests must not modify the clips)."""
+    from signsplat.motion.clips import load_gloss_library
+
+    return load_gloss_library(gloss_library_path)
+
+
+@pytest.fixture(scope="session")
+def tiny_body_path(tmp_path_factory):
+    """The stand-in body of tests/standins.py written once as a model file."""
+    from standins import tiny_body_arrays
+
+    from signsplat.body.model_file import write_model_file
+
+    return write_model_file(tmp_path_factory.mktemp("tiny_body") / "body.npz",
+                            tiny_body_arrays())
+
+
+@pytest.fixture
+def tiny_body(tiny_body_path):
+    """The stand-in body as a :class:`~signsplat.body.model.BodyModel` (a fresh one per test)."""
+    from signsplat.body.model import BodyModel
+
+    return BodyModel.from_file(tiny_body_path)
