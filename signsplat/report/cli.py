@@ -34,8 +34,12 @@ def _html(argv: list[str]) -> int:
     p.add_argument("--title", default="SignSplat report")
     p.add_argument("--tables", default=None,
                    help="also write every table of the report as TSV files in this folder")
+    p.add_argument("--fit-suite", default=None,
+                   help="the fit suite's table (benchmarks/fit_suite.py writes "
+                        "benchmarks/results/fit_suite.parquet): a section for it when it exists")
     a = p.parse_args(argv)
-    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables)
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables,
+                       a.fit_suite)
     print(f"report: {Path(out).resolve()}")
     return 0
 

@@ -209,6 +209,15 @@ def plot_suite(df: pd.DataFrame, path: str | Path) -> Path:
     return path
 
 
+def _unplaced_note(df: pd.DataFrame) -> str:
+    bad = df[df["unplaced"] > 0]
+    if not len(bad):
+        return ""
+    return (" Warning: cameras that could not be placed (left out of the fit and of the camera "
+            "errors): " + ", ".join(f"{r.scene} ({r.unplaced})" for r in bad.itertuples())
+            + ".")
+
+
 def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = None):
     """A report section (:class:`signsplat.report.html.Section`) for the suite table at
     ``parquet``, or None when the suite has not run. ``assets``: the report's
@@ -220,15 +229,17 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
         return None
     df = pd.read_parquet(parquet)
     s = summarise(df)
-    sec = Section("fit_suite", "Multi-view fit on the generalisation suite",
+    sec = Section("fit_suite", "10. Multi-view fit on the generalisation suite (benchmark)",
                   f"{s['scenes']} scenes from config/scenes/suite (2-8 cameras, arcs up to "
                   f"360 degrees, 1.5-4 m, images down to 160 px, effects); "
                   f"{s['meeting_targets']} of {s['multi_camera_scenes']} scenes with 3 or more "
                   f"cameras meet cameras <= 1 deg and <= 2 cm and body MPJPE <= 25 mm; "
-                  f"{s['failed_or_nan']} failed; {s['pipeline_hours']:.1f} h of pipeline.")
+                  f"{s['failed_or_nan']} failed; {s['pipeline_hours']:.1f} h of pipeline."
+                  + _unplaced_note(df))
     keep = ["scene", "cameras", "arc_deg", "distance_m", "image", "frames", "effects",
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "hands_mpjpe_mm",
-            "body_jitter", "camera_init", "unplaced", "fit_seconds", "status", "meets_target"]
+            "body_pa_mpjpe_mm", "hands_pa_mpjpe_mm", "body_jitter", "camera_init", "unplaced",
+            "fit_seconds", "status", "meets_target"]
     sec.add_table("per scene", df[keep])
     if figure is not None and Path(figure).exists():
         sec.figures.append(Figure(assets.copy(Path(figure)), "errors per scene",

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import observe, random_motion
+from fit_scenes import observe, random_motion
 
 from signsplat.config import validate
 from signsplat.fit import rig_init
@@ -204,6 +204,15 @@ def test_a_camera_that_cannot_be_placed_is_reported_and_left_out(kpm, motion, ca
     truth = Rig(rig.K[placed], rig.R[placed], rig.t[placed], rig.width[placed],
                 rig.height[placed])
     assert camera_errors(sub, truth)["rotation_deg_max"] < 1.5
+    # fit_eval counts it and measures the placed cameras only
+    from signsplat.fit.evaluate import fit_eval_table
+    from signsplat.io.tables import write_table
+
+    write_table(cameras_table(rig, "s", ["truth"] * 4), tmp_path / "gt.parquet", "cameras")
+    ev = fit_eval_table(kpm, res, obs, "multiview", "detected", None, tmp_path / "gt.parquet")
+    value = dict(zip(ev["metric"], ev["value"]))
+    assert value["cameras_unplaced"] == 1.0
+    assert value["camera_rotation_max"] < 1.5
 
 
 def test_jittered_cameras_are_read_as_their_mean(tmp_path):

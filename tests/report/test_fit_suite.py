@@ -63,3 +63,25 @@ def test_rows_targets_and_summary(tmp_path):
     assert [r["scene"] for r in s["two_camera"]] == ["pair"]
     path = plot_suite(df.reset_index(), tmp_path / "suite.svg")
     assert path.stat().st_size > 1000 and "<svg" in path.read_text()[:400]
+
+
+def test_report_section_when_the_suite_has_run(tmp_path):
+    """The report gains the suite's section (table, figure, the unplaced views named) only when
+    the suite's table exists."""
+    from signsplat.report.fit_suite import fit_suite_section
+    from signsplat.report.html import Assets
+
+    _fake(tmp_path, "good", 0.4, 0.01, 14.0, ["sfm"] * 3)
+    _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"])
+    df = suite_table([scene_row(tmp_path, s, SPEC3) for s in ("good", "unplaced")])
+    table = tmp_path / "bench" / "fit_suite.parquet"
+    assets = Assets(tmp_path / "report")
+    assert fit_suite_section(table, assets, table.with_suffix(".svg")) is None  # not run
+    write_table(df, table, "fit_suite")
+    plot_suite(df, table.with_suffix(".svg"))
+    sec = fit_suite_section(table, assets, table.with_suffix(".svg"))
+    assert "1 of 2 scenes with 3 or more cameras" in sec.intro
+    assert "could not be placed" in sec.intro and "unplaced (1)" in sec.intro
+    assert [c for c, _ in sec.frames] == ["per scene"]
+    assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
+    assert len(sec.figures) == 1 and (tmp_path / "report" / sec.figures[0].src).exists()

@@ -118,6 +118,14 @@ def report_inputs(wildcards):
     return final_outputs(report=False) + [f for f in study if os.path.exists(f)]
 
 
+# the fit's generalisation suite (benchmarks/fit_suite.py): a section when it has run
+FIT_SUITE_TABLE = Path(workflow.basedir) / "benchmarks" / "results" / "fit_suite.parquet"
+
+
+def fit_suite_arg(wildcards):
+    return f"--fit-suite '{FIT_SUITE_TABLE}'" if FIT_SUITE_TABLE.exists() else ""
+
+
 rule report:
     input:
         report_inputs,
@@ -129,11 +137,13 @@ rule report:
         f"{RESULTS}/_logs/report.log",
     benchmark:
         f"{RESULTS}/_benchmarks/report.tsv"
+    params:
+        suite=fit_suite_arg,
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
     shell:
         "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
-        " --tables {output.tables:q} > {log} 2>&1"
+        " --tables {output.tables:q} {params.suite} > {log} 2>&1"
 
