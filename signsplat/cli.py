@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("signsplat.synth.cli", "render a synthetic signer scene"),
     "sheet": ("signsplat.synth.cli", "write a sequence sheet (sheet synth: N signers x M sentences)"),
     "simulate-training-set": ("signsplat.synth.cli", "simulate the detector training scenes"),
+    "suite-scenes": ("signsplat.synth.suite", "write the fit's generalisation suite of scenes"),
     "train-detectors": ("signsplat.perception.cli", "train and export the default ONNX detectors"),
     "segment": ("signsplat.perception.cli", "person masks for every frame (ONNX)"),
     "detect-keypoints": ("signsplat.perception.cli", "COCO-WholeBody keypoints (ONNX)"),

@@ -25,6 +25,7 @@ from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
 from signsplat.report import accounting, plots, runs
 from signsplat.report.collect import Results, bench_seconds, collect
+from signsplat.report.fit_suite import fit_suite_section
 
 
 @dataclass
@@ -511,12 +512,20 @@ nav a{margin-right:1em}
 
 
 def build_sections(res: Results, report_dir: Path, demo: str = "demo",
-                   benchmark_patterns: dict | None = None) -> list[Section]:
+                   benchmark_patterns: dict | None = None,
+                   fit_suite: str | Path | None = None) -> list[Section]:
+    """The report's sections; with ``fit_suite`` (a ``fit_suite`` table that exists, written
+    by benchmarks/fit_suite.py) also the suite's section, its figure taken from beside it."""
     assets = Assets(report_dir)
-    return [scene_section(res, assets), perception_section(res), fit_section(res, assets),
-            colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
-            sweep_section(res, assets, demo), stitch_section(res, assets),
-            runtime_section(res, assets, benchmark_patterns)]
+    sections = [scene_section(res, assets), perception_section(res), fit_section(res, assets),
+                colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
+                sweep_section(res, assets, demo), stitch_section(res, assets),
+                runtime_section(res, assets, benchmark_patterns)]
+    if fit_suite is not None:
+        suite = fit_suite_section(fit_suite, assets, Path(fit_suite).with_suffix(".svg"))
+        if suite is not None:
+            sections.append(suite)
+    return sections
 
 
 def write_tables(sections: list[Section], folder: Path) -> list[Path]:
@@ -541,13 +550,16 @@ def write_tables(sections: list[Section], folder: Path) -> list[Path]:
 def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
                  demo: str = "demo", title: str = "SignSplat report",
                  tables_dir: str | Path | None = None,
-                 benchmark_patterns: dict | None = None) -> Path:
+                 benchmark_patterns: dict | None = None,
+                 fit_suite: str | Path | None = None) -> Path:
     """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
     ``tables_dir``, every table also as a TSV file there. ``benchmark_patterns`` (rule ->
-    its benchmark and log file patterns) names each job's rule in the cost tables."""
+    its benchmark and log file patterns) names each job's rule in the cost tables; with
+    ``fit_suite`` (the suite benchmark's table, when it exists) a section for the fit's
+    generalisation suite."""
     out = Path(out)
     res = collect(results, repo_scenes)
-    sections = build_sections(res, out.parent, demo, benchmark_patterns)
+    sections = build_sections(res, out.parent, demo, benchmark_patterns, fit_suite)
     if tables_dir is not None:
         write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),
