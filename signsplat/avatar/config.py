@@ -50,6 +50,7 @@ class PartValues:
 @dataclass
 class ModelConfig:
     pose_dependent: bool  # off = static mesh-anchored baseline (no Omega network)
+    pose_net_on: str  # Omega runs over the "vertices" (interpolated to the points) or "points"
     displacement: bool  # eq. 3 displacements of original vertices
     shading: bool  # learned global irradiance of the posed normal (see model docstring)
     hidden: int
