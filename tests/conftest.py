@@ -67,3 +67,15 @@ def pytest_collection_modifyitems(config, items):
     costs = [HEAVY.get(path, 30.0 if any(i.get_closest_marker("slow") for i in g) else 0.0)
              for path, g in groups.items()]
     items[:] = lanes(list(groups.values()), costs, n)
+
+
+@pytest.fixture(autouse=True)
+def _autograd_left_on():
+    """A test that leaves autograd switched off for its process fails (the tests after it on
+    the same worker would fail instead, far from the cause); grad mode is restored."""
+    import torch
+
+    yield
+    if not torch.is_grad_enabled():
+        torch.set_grad_enabled(True)
+        pytest.fail("this test left torch's grad mode off for the rest of the process")
