@@ -131,10 +131,10 @@ def pnp(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarray
     are not all collinear. Returns ``(R (3,3), t (3,), rms reprojection px)`` or None when the
     solve fails or puts points behind the camera.
     """
-    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
-    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    if len(obj) < 4 or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+    pts = _pnp_points(object_points, image_points, 4)
+    if pts is None:
         return None
+    obj, img = pts
     try:
         ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
         if not ok:
@@ -142,11 +142,32 @@ def pnp(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarray
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)
     except cv2.error:
         return None
+    return _accepted_pose(rvec, tvec, obj, img, K)
+
+
+def _pnp_points(object_points: np.ndarray, image_points: np.ndarray, minimum: int
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's (N,1,3) and (N,1,2) float64 arrays, or None for fewer than ``minimum``
+    points or a non-finite value."""
+    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    if len(obj) < minimum or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        return None
+    return obj, img
+
+
+def _accepted_pose(rvec: np.ndarray, tvec: np.ndarray, obj: np.ndarray, img: np.ndarray,
+                   K: np.ndarray, keep: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``(R, t, rms px over the points keep)`` of a solved pose (every point when ``keep`` is
+    None), or None when it is not finite or puts over 10 % of the points behind the camera."""
     R, _ = cv2.Rodrigues(rvec)
     t = tvec.reshape(3)
     depth = (obj.reshape(-1, 3) @ R.T + t)[:, 2]
     if not np.isfinite(R).all() or (depth <= 0).mean() > 0.1:
         return None
+    if keep is not None:
+        obj, img = obj[keep], img[keep]
     proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
     rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2, -1))))
     return R, t, rms
@@ -201,10 +222,10 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
     inlier reprojection distance. Returns ``(R, t, rms px of the inliers, inlier fraction)`` or
     None when fewer than 6 points, no consensus, or points behind the camera.
     """
-    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
-    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    if len(obj) < 6 or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+    pts = _pnp_points(object_points, image_points, 6)
+    if pts is None:
         return None
+    obj, img = pts
     cv2.setRNGSeed(seed)
     try:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
@@ -216,15 +237,8 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
         rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
     except cv2.error:
         return None
-    R, _ = cv2.Rodrigues(rvec)
-    t = tvec.reshape(3)
-    depth = (obj.reshape(-1, 3) @ R.T + t)[:, 2]
-    if not np.isfinite(R).all() or (depth <= 0).mean() > 0.1:
-        return None
-    proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, K, None)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img[inl].reshape(-1, 2)) ** 2,
-                                       -1))))
-    return R, t, rms, len(inl) / len(obj)
+    pose = _accepted_pose(rvec, tvec, obj, img, K, inl)
+    return None if pose is None else (*pose, len(inl) / len(obj))
 
 
 def projection_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:

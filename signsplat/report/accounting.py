@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from signsplat.io.tables import Table, register_table
+from signsplat.report.collect import benchmark_files
 
 SACCT_FIELDS = ("JobID", "JobName", "Comment", "Partition", "Account", "ReqMem", "Timelimit",
                 "AllocCPUS", "ReqTRES", "State", "ExitCode", "Start", "End", "ElapsedRaw",
@@ -245,13 +246,7 @@ def benchmark_jobs(bench_dir: str | Path, patterns: dict | None = None) -> pd.Da
     bench_dir = Path(bench_dir)
     patterns, logs = _split_patterns(patterns or {})
     rows = []
-    for f in sorted(bench_dir.rglob("*.tsv")) if bench_dir.is_dir() else []:
-        try:
-            df = pd.read_csv(f, sep="\t")
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
-            continue
-        if "s" not in df.columns or not len(df):
-            continue
+    for f, means in benchmark_files(bench_dir):
         rule, wc = _match_rule(f.relative_to(bench_dir).as_posix(), patterns)
         written = f
         if rule in logs:
@@ -261,14 +256,8 @@ def benchmark_jobs(bench_dir: str | Path, patterns: dict | None = None) -> pd.Da
                 log = None
             if log is not None and log.is_file():
                 written = log
-
-        def mean(col):
-            return float(pd.to_numeric(df[col], errors="coerce").mean()) \
-                if col in df.columns else float("nan")
-
         rows.append({"rule": rule, "wildcards": ",".join(f"{k}={v}" for k, v in wc.items()),
-                     "seconds": mean("s"), "cpu_seconds": mean("cpu_time"),
-                     "max_rss_mb": mean("max_rss"), "values": list(wc.values()),
+                     **means, "values": list(wc.values()),
                      "written": pd.Timestamp(datetime.fromtimestamp(written.stat().st_mtime))})
     return pd.DataFrame(rows, columns=["rule", "wildcards", "seconds", "cpu_seconds",
                                        "max_rss_mb", "values", "written"])
