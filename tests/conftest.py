@@ -51,3 +51,19 @@ def tiny_body(tiny_body_path):
     from signsplat.body.model import BodyModel
 
     return BodyModel.from_file(tiny_body_path)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Long tests first on make test's workers (:data:`HEAVY`, :func:`lanes`); a single
+    process keeps the collection order."""
+    from scheduling import HEAVY, lanes, workers
+
+    n = workers(config)
+    if n < 2:
+        return
+    groups: dict[str, list] = {}
+    for item in items:
+        groups.setdefault(item.nodeid.split("::")[0], []).append(item)
+    costs = [HEAVY.get(path, 30.0 if any(i.get_closest_marker("slow") for i in g) else 0.0)
+             for path, g in groups.items()]
+    items[:] = lanes(list(groups.values()), costs, n)

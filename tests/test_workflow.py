@@ -300,3 +300,30 @@ def test_dry_run_passes_a_footage_calibration_to_the_fit(tmp_path):
     assert "--calibration" not in no_cal[0]
     # a multi-view fit's params carry no single-view settings (changing those re-runs nothing)
     assert all('"multiview"' in f and '"singleview"' not in f for f in fits)
+
+
+def test_dry_run_of_the_footage_config_uses_the_pretrained_detectors(tmp_path):
+    """`make footage`: the example clip's row takes the pretrained detectors with its signer
+    box, the frames resized at ingest, a single-view fit, the demo avatar and the footage
+    measures; the clip and the models come from the fetch rules when the cache lacks them."""
+    cache = tmp_path / "cache"
+    cfg = tmp_path / "over.yaml"
+    cfg.write_text(yaml.safe_dump({"results": str(tmp_path / "r"),
+                                   "perception": {"pretrained": {"cache": str(cache)}}}))
+    sheet = (ROOT / "config" / "footage.tsv").read_text().replace(
+        "models/cache/demovideo.mp4", f"{cache}/demovideo.mp4")
+    (tmp_path / "footage.tsv").write_text(sheet)
+    over = yaml.safe_load((ROOT / "config" / "footage.yaml").read_text())
+    over["sequences"] = str(tmp_path / "footage.tsv")
+    over["report"] = {"html": str(tmp_path / "report" / "index.html")}
+    (tmp_path / "footage.yaml").write_text(yaml.safe_dump(over))
+    res = snakemake("-n", "-p", "--configfile", "config/config.yaml",
+                    str(tmp_path / "footage.yaml"), str(cfg))
+    assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
+    counts = job_counts(res.stdout)
+    for rule in ("fetch_models", "fetch_assets", "extract_frames", "segment", "detect_keypoints",
+                 "perception_quality", "fit_smplx", "train_avatar", "evaluate_avatar", "report"):
+        assert counts.get(rule) == 1, (rule, counts)
+    assert "simulate" not in counts
+    seg = [line for line in res.stdout.splitlines() if " -m signsplat segment " in line][0]
+    assert "--detectors pretrained" in seg and '"box": [213.0, 14.0, 150.0, 242.0]' in seg

@@ -39,9 +39,13 @@ def _html(argv: list[str]) -> int:
                    '{"benchmark": "results/_benchmarks/{scene}/segment.tsv", "log": '
                    '"results/_logs/{scene}/segment.log"}, ...}): names the rule of each job in '
                    'the cost tables and finds its SLURM step')
+    p.add_argument("--fit-suite", default=None,
+                   help="the fit suite's table (benchmarks/fit_suite.py writes "
+                        "benchmarks/results/fit_suite.parquet): a section for it when it exists")
     a = p.parse_args(argv)
     patterns = json.loads(a.benchmarks_json) if a.benchmarks_json else None
-    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables, patterns)
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables, patterns,
+                       a.fit_suite)
     print(f"report: {Path(out).resolve()}")
     return 0
 

@@ -50,6 +50,9 @@ class SceneTables:
     ablations: pd.DataFrame | None = None
     regularizer: pd.DataFrame | None = None
     sweep: pd.DataFrame | None = None
+    footage_quality: pd.DataFrame | None = None  # footage: detection rates, jitter
+    footage_overlays: list[Path] = field(default_factory=list)  # mask + keypoints on frames
+    persons: pd.DataFrame | None = None  # who the person detector saw, who was taken
 
 
 @dataclass
@@ -122,6 +125,9 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
         if kp.is_file():
             t.keypoints_2d = kp
             break
+    t.footage_quality = read_parquet(perc / "quality.parquet")
+    t.footage_overlays = _pngs(perc / "overlays", max_images)
+    t.persons = read_parquet(perc / "persons.parquet")
     t.ablations = read_parquet(scene_dir / "ablations.parquet")
     t.regularizer = read_parquet(scene_dir / "regularizer.parquet")
     t.sweep = read_parquet(scene_dir / "sweep.parquet")

@@ -126,6 +126,14 @@ def benchmark_patterns_json():
                     for r in workflow.rules if r.benchmark})
 
 
+# the fit's generalisation suite (benchmarks/fit_suite.py): a section when it has run
+FIT_SUITE_TABLE = Path(workflow.basedir) / "benchmarks" / "results" / "fit_suite.parquet"
+
+
+def fit_suite_arg(wildcards):
+    return f"--fit-suite '{FIT_SUITE_TABLE}'" if FIT_SUITE_TABLE.exists() else ""
+
+
 rule report:
     input:
         report_inputs,
@@ -135,6 +143,7 @@ rule report:
                       caption="../report/tables.rst", category="9. Tables of the report"),
     params:
         benchmarks=lambda wildcards: benchmark_patterns_json(),
+        suite=fit_suite_arg,
     log:
         f"{RESULTS}/_logs/report.log",
     benchmark:
@@ -145,5 +154,6 @@ rule report:
         runtime=10,
     shell:
         "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
-        " --tables {output.tables:q} --benchmarks-json {params.benchmarks:q} > {log} 2>&1"
+        " --tables {output.tables:q} --benchmarks-json {params.benchmarks:q} {params.suite}"
+        " > {log} 2>&1"
 
