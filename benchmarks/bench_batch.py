@@ -188,6 +188,9 @@ def main() -> None:
                         choices=["local", "slurm"])
     parser.add_argument("--dag-sizes", type=int, nargs="*", default=[24, 100, 1000])
     parser.add_argument("--avatar-steps", type=int, default=20)
+    parser.add_argument("--append", action="store_true",
+                        help="keep the runs already in batch.parquet / batch_rules.parquet "
+                             "(those of other sizes or executors) and add these")
     args = parser.parse_args()
     if "slurm" in args.executors and subprocess.run(
             [str(ROOT / "workflow" / "cluster" / "local-slurm.sh"), "status"],
@@ -210,6 +213,15 @@ def main() -> None:
                                "--configfile", str(cfg), "--cores", "2"])
         assert res.returncode == 0, res.stderr[-3000:]
         rows, rules = [], []
+        if args.append and (OUT / "batch.parquet").exists():
+            done = pd.read_parquet(OUT / "batch.parquet")
+            new_runs = {(e, n) for e in args.executors for n in args.sizes}
+            keep = [(e, n) not in new_runs for e, n in zip(done["executor"], done["sequences"])]
+            rows = done[keep].drop(columns=["marginal_wall_s_per_sequence"],
+                                   errors="ignore").to_dict("records")
+            old_rules = pd.read_parquet(OUT / "batch_rules.parquet")
+            rules = [old_rules[[(e, n) not in new_runs for e, n in
+                                zip(old_rules["executor"], old_rules["sequences"])]]]
         for n in args.sizes:
             for executor in args.executors:
                 row, per_rule = one_run(executor, n, tmp / f"{executor}{n}",

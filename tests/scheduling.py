@@ -9,6 +9,8 @@ import os
 # longest first, so no long test is left for the end of the run. A module with a `slow` test
 # and no entry here counts 30 s.
 HEAVY = {
+    # the cluster tests mostly wait for SLURM jobs (their CPU is spent outside the worker)
+    "tests/cluster/test_slurm.py": 400,
     "tests/test_workflow.py": 200, "tests/test_batch.py": 150, "tests/fit/test_fit.py": 100,
     "tests/perception/test_shipped_models.py": 60, "tests/perception/test_train.py": 60,
     "tests/render/test_raster_gradcheck.py": 30, "tests/perception/test_stages.py": 30,

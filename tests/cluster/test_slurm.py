@@ -233,7 +233,9 @@ def _video_frames(path: Path) -> np.ndarray:
     return np.stack(frames).astype(np.int16)
 
 
-def test_outputs_equal_a_local_run(slurm_run, local_run):
+def test_outputs_equal_a_local_run(local_run, slurm_run):
+    # (local_run first: under pytest-xdist the other worker runs the SLURM run meanwhile
+    # for the tests that need only it)
     a, b = slurm_run.results, local_run.results
     skip = ("_logs", "_benchmarks")
     files_a = {p.relative_to(a) for p in a.rglob("*") if p.is_file() and p.relative_to(a).parts[0] not in skip}

@@ -75,7 +75,7 @@ start_munge() {
     mkdir -p /run/munge && chown munge:munge /run/munge && chmod 755 /run/munge
     [ -f /etc/munge/munge.key ] || runuser -u munge -- mungekey --create
     # munge's own log and pid file (it refuses files it does not own)
-    runuser -u munge -- munged 2>>"$STATE/log/munged.log" \
+    runuser -u munge -- munged 2>>"$STATE/log/munged.log" 9>&- \
         || die "munged did not start ($STATE/log/munged.log, /var/log/munge/munged.log)"
     cp /run/munge/munged.pid "$STATE/run/munged.pid"  # started here: stopped by `stop`
     wait_for 10 munged munge_ok
@@ -88,7 +88,7 @@ start_database() {
     setsid mariadbd --no-defaults --datadir="$STATE/db" --socket="$SOCK" --port=$((PORT + 3)) \
         --bind-address=127.0.0.1 --skip-name-resolve --user=root --pid-file="$STATE/run/mariadbd.pid" \
         --log-error="$STATE/log/mariadbd.log" --innodb-buffer-pool-size=64M \
-        --innodb-lock-wait-timeout=900 </dev/null >/dev/null 2>&1 &
+        --innodb-lock-wait-timeout=900 </dev/null >/dev/null 2>&1 9>&- &
     wait_for 60 MariaDB mariadb-admin --no-defaults --socket="$SOCK" ping
     local pass
     pass=$(head -c 18 /dev/urandom | base64 | tr -dc 'A-Za-z0-9')
@@ -196,14 +196,14 @@ start() {
     write_config
     link_config
     start_database
-    slurmdbd || die "slurmdbd did not start ($STATE/log/slurmdbd.log)"
+    slurmdbd 9>&- || die "slurmdbd did not start ($STATE/log/slurmdbd.log)"
     wait_for 60 slurmdbd sacctmgr -n list cluster
     sacctmgr -i add cluster "$CLUSTER" >/dev/null
     sacctmgr -i add account "$ACCOUNT" Description="SignSplat test cluster" Organization=signsplat >/dev/null
     sacctmgr -i add user "$USER_NAME" Account="$ACCOUNT" DefaultAccount="$ACCOUNT" >/dev/null
-    slurmctld || die "slurmctld did not start ($STATE/log/slurmctld.log)"
+    slurmctld 9>&- || die "slurmctld did not start ($STATE/log/slurmctld.log)"
     wait_for 30 slurmctld scontrol ping
-    slurmd || die "slurmd did not start ($STATE/log/slurmd.log)"
+    slurmd 9>&- || die "slurmd did not start ($STATE/log/slurmd.log)"
     wait_for 60 "the node to be idle in sinfo" node_usable
     say "running: $(sinfo -h -o '%P %a %D %t %c CPUs %m MB' | tr '\n' ';') state in $STATE"
 }
@@ -251,7 +251,8 @@ stop() {
     say "stopped"
 }
 
-locked() {  # one start or stop at a time (parallel test processes)
+locked() {  # one start or stop at a time (parallel test processes); the daemons are
+    # started with fd 9 closed, or they would hold the lock for their whole life
     exec 9>>"$STATE.lock"
     flock 9
     "$@"
