@@ -85,3 +85,22 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
     assert len(sec.figures) == 1 and (tmp_path / "report" / sec.figures[0].src).exists()
+
+
+def test_the_report_command_shows_the_suite(tmp_path):
+    """`signsplat report html --fit-suite T` puts the section in the page and its table among
+    the TSV copies; without the option the page has no such section."""
+    from signsplat.cli import main
+
+    _fake(tmp_path / "suite", "good", 0.4, 0.01, 14.0, ["sfm"] * 3)
+    table = tmp_path / "fit_suite.parquet"
+    write_table(suite_table([scene_row(tmp_path / "suite", "good", SPEC3)]), table, "fit_suite")
+    (tmp_path / "results").mkdir()
+    for name, extra in (("with", ["--fit-suite", str(table)]), ("without", [])):
+        out = tmp_path / name / "index.html"
+        assert main(["report", "html", "--results", str(tmp_path / "results"), "--out",
+                     str(out), "--tables", str(tmp_path / name / "tables"), *extra]) == 0
+        page = out.read_text()
+        shown = "generalisation suite" in page
+        assert shown == (name == "with"), name
+        assert (tmp_path / name / "tables" / "fit_suite_00_per_scene.tsv").exists() == shown
