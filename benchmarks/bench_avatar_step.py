@@ -34,7 +34,8 @@ A densification event (prune + grow, every ``refine_every`` steps up to ``refine
 timed once at the end and reported on its own (``densify_event``), not inside the step.
 
 ``--variant NAME=JSON`` adds runs of this checkout with other config overrides (e.g.
-``--variant "vertices={\"model\": {\"pose_net_on\": \"vertices\"}}"``).
+``--variant "points={\"model\": {\"pose_net_on\": \"points\"}}"``, the paper's Omega over every
+point; the default runs it over the mesh vertices).
 
 ``--baseline PATH`` runs the same benchmark against another checkout (e.g. ``git worktree add
 /tmp/base <commit>``) in the same run: the two alternate (ABBA order over the rounds), and the
