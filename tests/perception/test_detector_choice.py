@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from signsplat.config import ConfigError, load_sequences, validate
-from signsplat.perception.detectors import detector_files, detectors_for
+from signsplat.perception.detectors import asset_files, detector_files, detectors_for
 
 CFG = validate({}, "stages/perception.schema.yaml")
 
@@ -47,6 +47,9 @@ def test_files_each_choice_reads():
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
     assert len(pre["keypoints"]) == 6 and all(f.startswith("models/cache/") and f.endswith(".onnx")
                                               for f in pre["keypoints"])
+    # the example clip is a fetched asset in the same cache (the fetch_assets rule makes it)
+    moved = {**CFG, "pretrained": {**CFG["pretrained"], "cache": "/elsewhere"}}
+    assert asset_files(moved) == {"demovideo": "/elsewhere/demovideo.mp4"}
 
 
 def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
