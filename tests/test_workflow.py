@@ -51,6 +51,23 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
                            for o in line.split(", ") if not o.startswith("reports/"))
 
 
+def test_default_workflow_profile_is_picked_up(tmp_path):
+    """Snakemake 9 loads profiles/default (beside the Snakefile or in the working directory)
+    with no option given: its `printshellcmds: true` shows each job's command in a dry run;
+    with the profile switched off the command is not shown."""
+    default = yaml.safe_load((ROOT / "profiles" / "default" / "config.yaml").read_text())
+    assert default["printshellcmds"] is True
+    target = str(tmp_path / "results" / "_assets" / "gloss_library.parquet")
+    res = snakemake("-n", target, "--config", f"results={tmp_path / 'results'}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "Using workflow specific profile profiles/default" in res.stderr
+    assert "-m signsplat gloss-library" in res.stdout
+    res = snakemake("-n", target, "--config", f"results={tmp_path / 'results'}",
+                    "--workflow-profile", "none")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "-m signsplat gloss-library" not in res.stdout
+
+
 def test_dry_run_rejects_an_unknown_effect(tmp_path):
     spec = tmp_path / "bad.yaml"
     spec.write_text("cameras: {count: 1}\nmotion: {glosses: [HELLO]}\n"

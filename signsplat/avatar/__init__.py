@@ -10,7 +10,7 @@ Modules (each small, functional where it can be):
   Omega with four heads, per-part sigmoid scale bounds) -> :class:`PosedGaussians`.
 - ``strategy``: :class:`MeshDensifyStrategy` density control on mesh faces (gsplat pattern).
 - ``regularize``: neighbourhood variance over mesh-connected neighbourhoods, displacement terms.
-- ``losses``: L1, D-SSIM (kornia), PSNR/SSIM, LPIPS from a local weight file.
+- ``losses``: L1, D-SSIM, PSNR/SSIM, LPIPS from a local weight file.
 - ``data``: scene tables -> :class:`SceneData`; novel-pose split.
 - ``train``: :class:`AvatarTrainer` (accumulation, SMPL-X fine-tuning, checkpoints).
 - ``checkpoint``: :func:`build_model` and :func:`load_avatar`, a trained avatar ready to render

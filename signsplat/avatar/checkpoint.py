@@ -60,7 +60,10 @@ def load_avatar(path: str | os.PathLike, body, device: torch.device | str = "cpu
     """A saved ``checkpoint.pt`` ready to render: (model, SMPL-X parameters module,
     checkpoint dict, :class:`~signsplat.avatar.config.AvatarConfig`)."""
     state = torch.load(path, map_location=device, weights_only=False)
-    cfg = avatar_config(state["config"])
+    saved = state["config"]
+    if "pose_net_on" not in saved.get("model", {}):  # saved before the setting: the paper's
+        saved = {**saved, "model": {**saved.get("model", {}), "pose_net_on": "points"}}
+    cfg = avatar_config(saved)
     smplx_state = state["smplx"]
     learnable = cfg.train.finetune_smplx
     params = {k: v for k, v in smplx_state.items()}

@@ -50,6 +50,7 @@ class PartValues:
 @dataclass
 class ModelConfig:
     pose_dependent: bool  # off = static mesh-anchored baseline (no Omega network)
+    pose_net_on: str  # Omega runs over the "vertices" (interpolated to the points) or "points"
     displacement: bool  # eq. 3 displacements of original vertices
     shading: bool  # learned global irradiance of the posed normal (see model docstring)
     hidden: int
@@ -86,10 +87,21 @@ class StrategyConfig:
 
 
 @dataclass
+class PartWeights:
+    body: float
+    face: float
+    hands: float
+
+
+@dataclass
 class RegularizeConfig:
     enabled: bool  # neighbourhood variance terms (paper Table 5 "Reg.")
-    radius: float  # m
+    radius: float  # m, in the space of position and scaled attributes
     max_neighbours: int
+    attribute_scale: float  # m per unit of attribute difference; 0 = proximity only
+    similarity: tuple[str, ...]  # attributes that count in the distance
+    face_apart: bool  # head points never neighbours of body/hand points
+    part_weights: PartWeights  # weight of each point's variance term by its part
     w_scale: float
     w_rotation: float
     w_opacity: float

@@ -9,14 +9,23 @@ by a light 1D-convolutional network and bounded per part (body > head > hands).
 Posing uses the body model's own output: canonical vertices ``v_shaped`` (betas and
 expression applied) and posed vertices ``vertices``; the displacement is carried to the posed
 space by each vertex's blended LBS matrix ``M_v = sum_j w_vj R_j`` (exact for LBS). Gaussian
-rotations are the canonical ones turned by the orthonormalised blended matrix of their point.
+rotations are the canonical ones turned by the rotation of their anchors' blended LBS frames
+(orthonormalised per vertex, blended as quaternions).
 
 Gaussian attributes are canonical learnable tensors; when ``pose_dependent`` is on, a shared
-1D-conv network Omega over the point sequence (ordered along a Morton curve so that sequence
-neighbours are spatial neighbours) takes the canonical point and its translation to the posed
-point (in the body's root frame) and four zero-initialised heads add pose-dependent residuals to
-scale, rotation, opacity and colour. Scales pass through a sigmoid bounded per part.
-Quaternions are stored ``(w, x, y, z)`` as in gsplat and the 3DGS PLY format.
+1D-conv network Omega over a sequence ordered along a Morton curve (so that sequence
+neighbours are spatial neighbours) takes the canonical position and its translation to the
+posed one (in the body's root frame) and four zero-initialised heads add pose-dependent
+residuals to scale, rotation, opacity and colour. The paper runs Omega over the points
+(``pose_net_on: points``); by default it runs over the mesh vertices and its residuals reach
+the points by their barycentric weights, like the displacement (``vertices``: a ninth of the
+work at 90k points). Scales pass through a sigmoid bounded per part. Quaternions are stored
+``(w, x, y, z)`` as in gsplat and the 3DGS PLY format.
+
+Everything that is a function of the vertices (posed positions, LBS rotations, Omega on
+vertices, the shading gain) is computed per vertex and carried to the points in one
+barycentric interpolation (:mod:`signsplat.avatar.interp`); the per-point attributes are one
+fused step (:mod:`signsplat.avatar.attributes`).
 
 Shading (switch ``shading``, an addition to the paper): a studio light makes a point darker or
 brighter as the body turns, which a colour fixed per point cannot follow and Omega (whose input
@@ -24,8 +33,8 @@ is positions) learns only slowly. One learnable global irradiance, a 9-coefficie
 real spherical-harmonics function of the posed unit normal per colour channel (the classic
 irradiance-environment-map approximation of Lambertian lighting, Ramamoorthi and Hanrahan
 2001), multiplies every point's colour: ``rgb' = gain(n) * rgb``. It starts at gain 1 and costs
-27 parameters; normals are the bary-interpolated vertex normals of the posed mesh (no gradient
-flows into the geometry through them).
+27 parameters. The gain is evaluated at the vertex normals of the posed mesh and interpolated
+to the points (no gradient flows into the geometry through the normals).
 """
 
 from __future__ import annotations
@@ -33,15 +42,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import roma
 import torch
 from torch import nn
 
 from signsplat.avatar.config import ModelConfig
+from signsplat.avatar.attributes import SH_C0, point_attributes
+from signsplat.avatar.interp import barycentric
 from signsplat.avatar.upsample import PointAnchors
 from signsplat.geometry.mesh import face_normals, vertex_normals
-
-SH_C0 = 0.28209479177387814  # Y_0^0; gsplat colour = SH_C0 * f_dc + 0.5 (+ higher bands)
 
 # part label (joints.PART_*: body, head, left hand, right hand) -> index into (body, head, hands)
 _PART_TO_GROUP = torch.tensor([0, 1, 2, 2])
@@ -68,22 +76,57 @@ def irradiance_basis(n: torch.Tensor) -> torch.Tensor:
     ], -1)
 
 
-def shade_sh(sh: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
-    """Multiply the RGB that SH coefficients (B, P, K, 3) decode to by ``gain`` (B, P, 3).
-
-    The rasterizer decodes ``rgb = SH_C0 * dc + 0.5 + sum_k rest_k Y_k``; scaling it by g gives
-    ``dc' = g * dc + (g - 1) * 0.5 / SH_C0`` and ``rest' = g * rest``.
-    """
-    dc = gain * sh[:, :, 0] + (gain - 1.0) * (0.5 / SH_C0)
-    return torch.cat([dc[:, :, None], gain[:, :, None] * sh[:, :, 1:]], 2)
-
-
 def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[..., 1:], q[..., :1]], -1)
 
 
 def xyzw_to_wxyz(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[..., 3:], q[..., :3]], -1)
+
+
+def frame_quats(m: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """(..., 4) wxyz unit quaternions of the rotations of (..., 3, 3) frames ``m`` (the blended
+    LBS matrices): the first two columns of ``m + eps I`` orthonormalised (Gram-Schmidt, as
+    ``roma.special_gramschmidt``), then Markley's variant of Shepperd's method (as
+    ``roma.rotmat_to_unitquat``: the largest of the four candidates ``4 q_i q``, normalised).
+
+    The same values as the roma composition, computed on contiguous per-component vectors:
+    on the avatar's (3, 10475) frames roma's batched 3 x 3 operations on strided views cost
+    about 0.1 s forward and backward (docs/avatar_step.md), these a few milliseconds.
+    """
+    shape = m.shape[:-2]
+    c = m.reshape(-1, 9).T.contiguous()  # (9, N): row 3 i + j is m[..., i, j]
+    x0, x1, x2 = c[0] + eps, c[3], c[6]
+    y0, y1, y2 = c[1], c[4] + eps, c[7]
+    xn = torch.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    x0, x1, x2 = x0 / xn, x1 / xn, x2 / xn
+    d = x0 * y0 + x1 * y1 + x2 * y2
+    y0, y1, y2 = y0 - d * x0, y1 - d * x1, y2 - d * x2
+    yn = torch.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    y0, y1, y2 = y0 / yn, y1 / yn, y2 / yn
+    z0, z1, z2 = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
+    # Markley's A = R^T with R = [x y z] (columns): a_ij = R_ji
+    a11, a12, a13, a21, a22, a23, a31, a32, a33 = x0, x1, x2, y0, y1, y2, z0, z1, z2
+    cand = (  # x^(i) = 4 q_i q in (x, y, z, w)
+        (1 + a11 - a22 - a33, a12 + a21, a13 + a31, a23 - a32),
+        (a21 + a12, 1 + a22 - a33 - a11, a23 + a32, a31 - a13),
+        (a31 + a13, a32 + a23, 1 + a33 - a11 - a22, a12 - a21),
+        (a23 - a32, a31 - a13, a12 - a21, 1 + a11 + a22 + a33),
+    )
+    with torch.no_grad():  # one-hot of the largest diagonal entry (the first of equals)
+        diag = [cand[i][i] for i in range(4)]
+        top = torch.maximum(torch.maximum(diag[0], diag[1]), torch.maximum(diag[2], diag[3]))
+        taken = torch.zeros_like(top, dtype=torch.bool)
+        pick = []
+        for i in range(4):
+            hit = (diag[i] == top) & ~taken
+            taken |= hit
+            pick.append(hit.to(m.dtype))
+    # products with 0/1 masks rather than torch.where or a gather: on (N,) vectors both were
+    # many times slower here, forward and backward
+    q = [sum(pick[i] * cand[i][comp] for i in range(4)) for comp in (3, 0, 1, 2)]  # w x y z
+    norm = torch.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (torch.stack(q, -1) / norm[:, None]).reshape(*shape, 4)
 
 
 def morton_order(points: torch.Tensor, bits: int = 10) -> torch.Tensor:
@@ -123,23 +166,13 @@ class ConvNet1d(nn.Module):
         return list(torch.split(self.head(f), self.sizes, dim=-1))
 
 
-def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of (..., 4) quaternions in (w, x, y, z) order."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw], -1)
-
-
 @dataclass
 class PosedGaussians:
     """Gaussians of B frames over P points (float32, metres).
 
     means (B,P,3), quats (B,P,4) wxyz unit, scales (B,P,3) > 0, opacities (B,P) in (0,1),
-    colors (B,P,K,3) SH coefficients with K = (sh_degree+1)^2, canonical (B,P,3) canonical
-    positions, displacement (V,3) or None (eq. 3 d, before the normal product),
+    colors (B,P,K,3) SH coefficients with K = (sh_degree+1)^2,
+    displacement (V,3) or None (eq. 3 d, before the normal product),
     normal_offset (P,) the l of each point (0 where fixed).
     """
 
@@ -148,7 +181,6 @@ class PosedGaussians:
     scales: torch.Tensor
     opacities: torch.Tensor
     colors: torch.Tensor
-    canonical: torch.Tensor
     displacement: torch.Tensor | None
     normal_offset: torch.Tensor
     sh_degree: int
@@ -267,8 +299,10 @@ class AvatarModel(nn.Module):
 
     def barycentric(self) -> torch.Tensor:
         """(P, 3) current barycentric weights (learnable only for densified points)."""
-        soft = torch.softmax(self.bary_logits, -1)
-        return torch.where(self.learnable[:, None], soft, self.bary_fixed)
+        idx = torch.nonzero(self.learnable)[:, 0]
+        if len(idx) == 0:
+            return self.bary_fixed
+        return self.bary_fixed.index_put((idx,), torch.softmax(self.bary_logits[idx], -1))
 
     def offsets(self) -> torch.Tensor:
         """(P,) normal offsets l (zero where not learnable)."""
@@ -316,76 +350,95 @@ class AvatarModel(nn.Module):
         v_shaped: (B, V, 3) canonical vertices; vertices: (B, V, 3) posed vertices;
         transforms: (B, J, 4, 4) LBS joint transforms (index 0 = root); transl: (B, 3) or None;
         sh_degree: SH degree in use (coefficients above it are dropped).
+
+        Whatever is a function of the vertices (the blended LBS frames, the displacement, the
+        pose network when ``model.pose_net_on`` is ``vertices``, the shading gain) is computed
+        per vertex and carried to the points in one barycentric interpolation.
         """
-        b = v_shaped.shape[0]
         rot = transforms[..., :3, :3]
         m_v = torch.einsum("vj,bjxy->bvxy", self.lbs_weights, rot)  # (B, V, 3, 3)
         disp = self.displacement()
         if disp is not None:
             off = disp[None] * vertex_normals(v_shaped, self.faces)
             v_c = v_shaped + off
-            v_p = vertices + torch.einsum("bvxy,bvy->bvx", m_v, off)
+            v_p = vertices + (m_v @ off[..., None])[..., 0]
         else:
             v_c, v_p = v_shaped, vertices
+        # the rotation of each vertex's blended LBS frame; blended over each point's anchors on
+        # the hemisphere of its first anchor's (first in the fields: align) and normalised with
+        # the attributes
+        q_v = frame_quats(m_v)
+        fields = {"q": q_v, "x_p": v_p}
+        point_net = self.omega is not None and self.cfg.pose_net_on == "points"
+        if point_net:
+            fields["x_c"] = v_c
+        elif self.omega is not None:
+            fields["heads"] = self._pose_net_vertices(v_c, v_p, transforms, transl)
+        if self.irradiance is not None:
+            # the gain of each vertex's posed normal, interpolated (no gradient into the
+            # geometry through the normals)
+            with torch.no_grad():
+                basis = irradiance_basis(vertex_normals(v_p.detach(), self.faces))  # (B, V, 9)
+            # elementwise product + sum rather than a matmul: BLAS's reduction for the
+            # coefficients' gradient is not reproducible run to run, this is
+            fields["gain"] = (basis[..., None] * self.irradiance).sum(-2)
         bary = self.barycentric()
-        x_c = (v_c[:, self.anchors] * bary[None, ..., None]).sum(2)
-        x_p = (v_p[:, self.anchors] * bary[None, ..., None]).sum(2)
+        f = dict(zip(fields, barycentric(torch.cat(list(fields.values()), -1), self.anchors, bary,
+                                         align=True).split([x.shape[-1]
+                                                            for x in fields.values()], -1)))
         l_off = self.offsets()
         on_face = self.learnable & (self.face >= 0)
         if bool(on_face.any()):
             idx = torch.nonzero(on_face)[:, 0]
             fidx = self.face[idx]
-            n_c = face_normals(v_c, self.faces[fidx])
-            n_p = face_normals(v_p, self.faces[fidx])
-            x_c = x_c.index_add(1, idx, n_c * l_off[idx, None])
-            x_p = x_p.index_add(1, idx, n_p * l_off[idx, None])
-        # rotation of each vertex's blended LBS frame, blended over each point's anchors
-        eye = torch.eye(3, dtype=m_v.dtype, device=m_v.device)
-        q_v = xyzw_to_wxyz(roma.rotmat_to_unitquat(roma.special_gramschmidt(m_v + 1e-6 * eye)))
-        q_a = q_v[:, self.anchors]  # (B, P, 3, 4)
-        sign = torch.where((q_a * q_a[:, :, :1]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-        q_p = (q_a * (sign * bary[None, ..., None])).sum(2)
-        q_p = q_p / q_p.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-
-        scale_raw = self.scale_raw.expand(b, -1, -1)
-        quat = self.quat.expand(b, -1, -1)
-        opacity_raw = self.opacity_raw[:, 0].expand(b, -1)
+            for x, v in (("x_p", v_p), ("x_c", v_c)):
+                if x not in f:
+                    continue
+                if len(idx) > len(self.faces):  # every face once, then per point
+                    n = face_normals(v, self.faces).index_select(1, fidx)
+                else:
+                    n = face_normals(v, self.faces[fidx])
+                f[x] = f[x].index_add(1, idx, n * l_off[idx, None])
+        heads = f.get("heads")
+        if point_net:
+            heads = self._pose_net_points(f["x_c"], f["x_p"], transforms, transl)
         k = num_sh_bases(sh_degree)
-        sh = torch.cat([self.sh_dc, self.sh_rest[:, : k - 1]], 1).expand(b, -1, -1, -1)
-        if self.omega is not None:
-            # translation canonical -> posed, expressed in the root joint's frame
-            root = transforms[:, 0]
-            tr = transl if transl is not None else torch.zeros(b, 3, dtype=x_p.dtype,
-                                                               device=x_p.device)
-            x_root = torch.einsum("byx,bpy->bpx", root[:, :3, :3],
-                                  x_p - tr[:, None] - root[:, None, :3, 3])
-            feat = torch.cat([(x_c - self.center) / self.extent, (x_root - x_c) / self.extent], -1)
-            order = self.point_order
-            heads = self.omega(feat[:, order].transpose(1, 2))  # (B, P, k) in sequence order
-            d_s, d_q, d_o, d_c = (torch.empty_like(h).index_copy(1, order, h) for h in heads)
-            scale_raw = scale_raw + d_s
-            quat = quat + d_q
-            opacity_raw = opacity_raw + d_o[..., 0]
-            sh = torch.cat([sh[:, :, :1] + d_c[:, :, None], sh[:, :, 1:]], 2)
-        if self.irradiance is not None:
-            with torch.no_grad():
-                n_v = vertex_normals(v_p.detach(), self.faces)[:, self.anchors]  # (B, P, 3, 3)
-                n_p = (n_v * bary.detach()[None, ..., None]).sum(2)
-                n_p = n_p / n_p.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-            # elementwise product + sum rather than a matmul: BLAS's reduction over B*P points for
-            # the coefficients' gradient is not reproducible run to run, this is
-            gain = (irradiance_basis(n_p)[..., None] * self.irradiance).sum(-2)
-            sh = shade_sh(sh, gain)
-        smin = self.cfg.scale_min
-        smax = self.scale_max_per_point()[None, :, None]
-        scales = smin + (smax - smin) * torch.sigmoid(scale_raw)
-        q_c = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        quats = quat_mul(q_p, q_c)
-        return PosedGaussians(
-            means=x_p, quats=quats, scales=scales, opacities=torch.sigmoid(opacity_raw),
-            colors=sh, canonical=x_c, displacement=disp, normal_offset=l_off,
-            sh_degree=sh_degree,
-        )
+        scales, quats, opacities, colors = point_attributes(
+            self.scale_raw, self.quat, self.opacity_raw[:, 0], self.sh_dc[:, 0],
+            self.sh_rest[:, : k - 1], heads, f.get("gain"), f["q"], self.scale_max_per_point(),
+            self.cfg.scale_min)
+        return PosedGaussians(means=f["x_p"], quats=quats, scales=scales, opacities=opacities,
+                              colors=colors, displacement=disp, normal_offset=l_off,
+                              sh_degree=sh_degree)
+
+    def _root_frame(self, x_p: torch.Tensor, transforms: torch.Tensor,
+                    transl: torch.Tensor | None) -> torch.Tensor:
+        """(B, N, 3) posed positions in the body's root frame (translation removed)."""
+        b = x_p.shape[0]
+        root = transforms[:, 0]
+        tr = transl if transl is not None else torch.zeros(b, 3, dtype=x_p.dtype,
+                                                           device=x_p.device)
+        return torch.einsum("byx,bpy->bpx", root[:, :3, :3],
+                            x_p - tr[:, None] - root[:, None, :3, 3])
+
+    def _pose_net_vertices(self, v_c: torch.Tensor, v_p: torch.Tensor,
+                           transforms: torch.Tensor, transl: torch.Tensor | None) -> torch.Tensor:
+        """Omega over the vertex sequence: (B, V, 11) residuals (scale 3, rotation 4, opacity 1,
+        colour 3) from each vertex's canonical position and its translation to the posed one."""
+        feat = torch.cat([(v_c - self.center) / self.extent,
+                          (self._root_frame(v_p, transforms, transl) - v_c) / self.extent], -1)
+        order = self.vertex_order
+        out = torch.cat(self.omega(feat[:, order].transpose(1, 2)), -1)  # sequence order
+        return torch.empty_like(out).index_copy(1, order, out)
+
+    def _pose_net_points(self, x_c: torch.Tensor, x_p: torch.Tensor, transforms: torch.Tensor,
+                         transl: torch.Tensor | None) -> torch.Tensor:
+        """Omega over the point sequence (the paper's): (B, P, 11) residuals."""
+        feat = torch.cat([(x_c - self.center) / self.extent,
+                          (self._root_frame(x_p, transforms, transl) - x_c) / self.extent], -1)
+        order = self.point_order
+        out = torch.cat(self.omega(feat[:, order].transpose(1, 2)), -1)  # sequence order
+        return torch.empty_like(out).index_copy(1, order, out)
 
     # ------------------------------------------------------------------ resizing
     def point_tensors(self) -> dict[str, torch.Tensor]:

@@ -23,8 +23,9 @@ from signsplat.avatar.views import WEAK_VIEW_DB, weak_views
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
-from signsplat.report import plots, runs
+from signsplat.report import accounting, plots, runs
 from signsplat.report.collect import Results, bench_seconds, collect
+from signsplat.report.fit_suite import fit_suite_section
 
 
 @dataclass
@@ -513,9 +514,11 @@ def stitch_section(res: Results, assets: Assets) -> Section:
     return sec
 
 
-def runtime_section(res: Results, assets: Assets) -> Section:
+def runtime_section(res: Results, assets: Assets,
+                    benchmark_patterns: dict | None = None) -> Section:
     sec = Section("runtimes", "9. Run time per rule",
-                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory).")
+                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory); for a "
+                  "run on SLURM, the scheduler's own figures (sacct) beside them.")
     b = res.benchmarks
     if not len(b):
         sec.missing = "no benchmark files in results/_benchmarks"
@@ -525,6 +528,8 @@ def runtime_section(res: Results, assets: Assets) -> Section:
                               float(b["seconds"].sum()), "sum over all jobs"))
     sec.add_table("Jobs", b.drop(columns=["file"]).sort_values(
         "seconds", ascending=False))
+    for caption, df in accounting.cost_tables(res.root, benchmark_patterns):
+        sec.add_table(caption, df)
     return sec
 
 
@@ -566,15 +571,24 @@ nav a{margin-right:1em}
 """)
 
 
-def build_sections(res: Results, report_dir: Path, demo: str = "demo") -> list[Section]:
+def build_sections(res: Results, report_dir: Path, demo: str = "demo",
+                   benchmark_patterns: dict | None = None,
+                   fit_suite: str | Path | None = None) -> list[Section]:
+    """The report's sections; with ``fit_suite`` (a ``fit_suite`` table that exists, written
+    by benchmarks/fit_suite.py) also the suite's section, its figure taken from beside it."""
     assets = Assets(report_dir)
     footage = [footage_section(res, assets)] if any(
         t.footage_quality is not None for t in res.scenes.values()) else []
-    return [scene_section(res, assets), perception_section(res), *footage,
-            fit_section(res, assets),
-            colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
-            sweep_section(res, assets, demo), stitch_section(res, assets),
-            runtime_section(res, assets)]
+    sections = [scene_section(res, assets), perception_section(res), *footage,
+                fit_section(res, assets),
+                colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
+                sweep_section(res, assets, demo), stitch_section(res, assets),
+                runtime_section(res, assets, benchmark_patterns)]
+    if fit_suite is not None:
+        suite = fit_suite_section(fit_suite, assets, Path(fit_suite).with_suffix(".svg"))
+        if suite is not None:
+            sections.append(suite)
+    return sections
 
 
 def write_tables(sections: list[Section], folder: Path) -> list[Path]:
@@ -598,12 +612,17 @@ def write_tables(sections: list[Section], folder: Path) -> list[Path]:
 
 def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
                  demo: str = "demo", title: str = "SignSplat report",
-                 tables_dir: str | Path | None = None) -> Path:
+                 tables_dir: str | Path | None = None,
+                 benchmark_patterns: dict | None = None,
+                 fit_suite: str | Path | None = None) -> Path:
     """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
-    ``tables_dir``, every table also as a TSV file there."""
+    ``tables_dir``, every table also as a TSV file there. ``benchmark_patterns`` (rule ->
+    its benchmark and log file patterns) names each job's rule in the cost tables; with
+    ``fit_suite`` (the suite benchmark's table, when it exists) a section for the fit's
+    generalisation suite."""
     out = Path(out)
     res = collect(results, repo_scenes)
-    sections = build_sections(res, out.parent, demo)
+    sections = build_sections(res, out.parent, demo, benchmark_patterns, fit_suite)
     if tables_dir is not None:
         write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),

@@ -2,13 +2,15 @@
 
 import math
 
+import pytest
+
 import roma
 import torch
 from avatar_scenes import SIZES, random_smplx, rig
 
 from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
-from signsplat.avatar.model import sh_degree_at, wxyz_to_xyzw
+from signsplat.avatar.model import frame_quats, sh_degree_at, wxyz_to_xyzw, xyzw_to_wxyz
 from signsplat.render import rasterization
 
 CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}
@@ -65,7 +67,8 @@ def test_scales_bounded_per_part_and_displacement_bounded(tiny_body):
                         cfg.model.displacement_limit.hands])[vparts]
     assert bool((d <= lim + 1e-6).all()) and float(d.min()) > 0.5 * float(lim.min())
     # displacement moves original vertices along their normals; points follow their anchors
-    moved = (g.canonical[0] - model.canonical_points()).norm(dim=-1)
+    # (posed in the rest pose: the posed points are the canonical ones)
+    moved = (g.means[0] - model.canonical_points()).norm(dim=-1)
     assert float(moved[: model.num_vertices].min()) > 0
 
 
@@ -145,3 +148,59 @@ def test_flat_init_puts_discs_in_the_surface(tiny_body):
     assert float(ratio.max()) < 0.5
     gb = _pose(ball, tiny_body, {"betas": torch.zeros(1, 10)})
     torch.testing.assert_close(gb.scales[0].min(-1).values, gb.scales[0].max(-1).values)
+
+
+def test_frame_quats_is_roma_gram_schmidt_then_markley():
+    """The per-vertex LBS frame's quaternion: the same values and gradients as roma's
+    special_gramschmidt + rotmat_to_unitquat, on every branch of Markley's method (rotations
+    near the identity and near half-turns about x, y and z) and on blended (not orthonormal)
+    frames."""
+    g = torch.Generator().manual_seed(0)
+    axes = torch.eye(3, dtype=torch.float64)
+    rv = torch.cat([0.3 * torch.randn(40, 3, generator=g, dtype=torch.float64),
+                    *[3.1 * axes[i] + 0.05 * torch.randn(40, 3, generator=g, dtype=torch.float64)
+                      for i in range(3)]])
+    r = roma.rotvec_to_rotmat(rv)
+    blended = 0.6 * r + 0.4 * r[torch.randperm(len(r), generator=g)]
+    m = torch.stack([r, blended]).requires_grad_()  # (2, 160, 3, 3)
+    eye = torch.eye(3, dtype=torch.float64)
+
+    def oracle(x):
+        return xyzw_to_wxyz(roma.rotmat_to_unitquat(roma.special_gramschmidt(x + 1e-6 * eye)))
+
+    want = oracle(m)
+    got = frame_quats(m)
+    assert got.shape == (2, 160, 4)
+    # every branch of Markley's method is exercised (largest diagonal candidate: w, x, y, z)
+    w, x, y, z = want.detach().abs().unbind(-1)
+    branch = torch.stack([x, y, z, w]).argmax(0)
+    assert set(branch.flatten().tolist()) == {0, 1, 2, 3}
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    probe = torch.randn(got.shape, generator=g, dtype=torch.float64)
+    g_got, = torch.autograd.grad((got * probe).sum(), m)
+    g_want, = torch.autograd.grad((want * probe).sum(), m)
+    torch.testing.assert_close(g_got, g_want, rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.parametrize("on", ["vertices", "points"])
+def test_pose_net_runs_over_the_vertices_or_the_points(tiny_body, on):
+    """model.pose_net_on: Omega's sequence is the mesh vertices (its residuals interpolated to
+    the points) or every point; either way a zero-initialised head leaves the canonical model
+    and, once trained, moves the Gaussians and takes gradients."""
+    model, _ = _model(tiny_body, model={"pose_net_on": on})
+    params = random_smplx(2, seed=4)
+    seen = []
+    forward = model.omega.forward
+    model.omega.forward = lambda x: seen.append(tuple(x.shape)) or forward(x)
+    g0 = _pose(model, tiny_body, params)
+    length = model.num_vertices if on == "vertices" else model.num_points
+    assert model.num_vertices != model.num_points
+    assert seen == [(2, 6, length)]
+    torch.nn.init.normal_(model.omega.head.weight, std=0.5)
+    g1 = _pose(model, tiny_body, params)
+    torch.testing.assert_close(g1.means, g0.means)  # Omega never moves the points
+    assert float((g1.scales - g0.scales).abs().max()) > 1e-4
+    assert float((g1.quats - g0.quats).abs().max()) > 1e-4
+    (g1.scales.sum() + g1.colors.sum()).backward()
+    assert all(p.grad is not None and float(p.grad.abs().max()) > 0
+               for p in model.omega.trunk.parameters())

@@ -7,7 +7,8 @@ from avatar_scenes import random_smplx
 
 from signsplat.avatar.checkpoint import build_model
 from signsplat.avatar.config import avatar_config
-from signsplat.avatar.model import irradiance_basis, shade_sh
+from signsplat.avatar.attributes import point_attributes_torch
+from signsplat.avatar.model import irradiance_basis
 from signsplat.render.sh import spherical_harmonics
 
 CFG = {"upsample": {"edge_length": 0.08, "face_area": 3e-3}}
@@ -27,12 +28,16 @@ def _decode(sh, dirs):
     return spherical_harmonics(1, dirs, sh) + 0.5
 
 
-def test_shade_sh_scales_the_decoded_colour_exactly():
+def test_the_gain_scales_the_decoded_colour_exactly():
     g = torch.Generator().manual_seed(0)
-    sh = torch.randn(2, 50, 4, 3, generator=g)
+    sh = torch.randn(50, 4, 3, generator=g)
     gain = torch.rand(2, 50, 3, generator=g) * 2
     dirs = torch.nn.functional.normalize(torch.randn(2, 50, 3, generator=g), dim=-1)
-    torch.testing.assert_close(_decode(shade_sh(sh, gain), dirs), gain * _decode(sh, dirs))
+    args = (torch.zeros(50, 3), torch.randn(50, 4, generator=g), torch.zeros(50))
+    rest = (torch.randn(2, 50, 4, generator=g), torch.ones(50), 0.0)
+    shaded = point_attributes_torch(*args, sh[:, 0], sh[:, 1:], None, gain, *rest)[3]
+    plain = point_attributes_torch(*args, sh[:, 0], sh[:, 1:], None, None, *rest)[3]
+    torch.testing.assert_close(_decode(shaded, dirs), gain * _decode(plain, dirs))
 
 
 def test_irradiance_basis_is_orthonormal_on_the_sphere():

@@ -3,7 +3,16 @@
 import pytest
 import torch
 
-from signsplat.avatar.losses import LPIPS, dssim, image_loss, load_lpips, psnr, ssim
+from signsplat.avatar.losses import (
+    LPIPS,
+    blur_matrix,
+    dssim,
+    image_loss,
+    load_lpips,
+    psnr,
+    ssim,
+    ssim_map,
+)
 from signsplat.errors import InputError
 
 
@@ -65,3 +74,26 @@ def test_lpips_bad_files_name_the_problem(tmp_path):
     _standin(tmp_path / "bad.pth", drop="lin2.model.1.weight")
     with pytest.raises(InputError, match="lin2.model.1.weight"):
         load_lpips(tmp_path / "bad.pth")
+
+
+@pytest.mark.parametrize("shape,window", [((2, 3, 37, 23), 11), ((1, 3, 16, 64), 11),
+                                          ((1, 1, 9, 12), 7), ((1, 3, 6, 20), 11)])
+def test_ssim_map_is_kornias_forward_and_backward(shape, window):
+    import kornia
+
+    g = torch.Generator().manual_seed(5)
+    x = torch.rand(*shape, generator=g, dtype=torch.float64)
+    y = (x + 0.3 * torch.randn(*shape, generator=g, dtype=torch.float64)).clamp(0, 1)
+    a, b = x.clone().requires_grad_(), x.clone().requires_grad_()
+    if min(shape[-2:]) > window // 2:  # kornia's reflect padding needs that
+        ref = kornia.metrics.ssim(b, y, window)
+        ours = ssim_map(a, y, window)
+        torch.testing.assert_close(ours, ref)
+        w = torch.rand(*shape, generator=g, dtype=torch.float64)
+        (ours * w).sum().backward()
+        (ref * w).sum().backward()
+        torch.testing.assert_close(a.grad, b.grad)
+    else:  # shorter than the window's half: still a blur whose rows sum to one
+        m = blur_matrix(shape[-2], window, torch.float64)
+        torch.testing.assert_close(m.sum(1), torch.ones(shape[-2], dtype=torch.float64))
+        assert float(ssim(x, x)) == pytest.approx(1.0)
