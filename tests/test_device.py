@@ -33,15 +33,17 @@ def test_set_threads_holds_for_torch_after_numba_starts_its_pool():
 
 
 def test_make_deterministic_makes_the_avatars_vertex_gather_backward_reproducible():
-    """The avatar gathers each point's anchor vertices with repeated indices; on 2 threads the
-    backward of that gather accumulates with atomic adds and differs run to run. In a fresh
-    process (the setting is global): first without :func:`make_deterministic`, repeated
-    backwards must part (else this check could not see the fault it guards against), then with
-    it 20 repeats must agree bit for bit."""
+    """The avatar gathers each point's anchor vertices with repeated indices; on several
+    threads the backward of that gather accumulates with atomic adds and differs run to run.
+    In a fresh process (the setting is global): first without :func:`make_deterministic`,
+    repeated backwards must part (else this check could not see the fault it guards against),
+    then with it 20 repeats must agree bit for bit. Four threads, more than the cores of a
+    small machine, so the threads' interleaving varies even when other work keeps a core busy
+    (with two threads on a loaded 2-core machine, 200 repeats could agree)."""
     code = (
         "import torch\n"
         "from signsplat.device import make_deterministic, set_threads\n"
-        "set_threads(2)\n"
+        "set_threads(4)\n"
         "g = torch.Generator().manual_seed(0)\n"
         "v = torch.randn(3, 10475, 3, generator=g)\n"
         "anchors = torch.randint(0, 10475, (60000, 3), generator=g)\n"

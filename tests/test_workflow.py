@@ -51,6 +51,23 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
                            for o in line.split(", ") if not o.startswith("reports/"))
 
 
+def test_default_workflow_profile_is_picked_up(tmp_path):
+    """Snakemake 9 loads profiles/default (beside the Snakefile or in the working directory)
+    with no option given: its `printshellcmds: true` shows each job's command in a dry run;
+    with the profile switched off the command is not shown."""
+    default = yaml.safe_load((ROOT / "profiles" / "default" / "config.yaml").read_text())
+    assert default["printshellcmds"] is True
+    target = str(tmp_path / "results" / "_assets" / "gloss_library.parquet")
+    res = snakemake("-n", target, "--config", f"results={tmp_path / 'results'}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "Using workflow specific profile profiles/default" in res.stderr
+    assert "-m signsplat gloss-library" in res.stdout
+    res = snakemake("-n", target, "--config", f"results={tmp_path / 'results'}",
+                    "--workflow-profile", "none")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "-m signsplat gloss-library" not in res.stdout
+
+
 def test_dry_run_rejects_an_unknown_effect(tmp_path):
     spec = tmp_path / "bad.yaml"
     spec.write_text("cameras: {count: 1}\nmotion: {glosses: [HELLO]}\n"
@@ -283,3 +300,30 @@ def test_dry_run_passes_a_footage_calibration_to_the_fit(tmp_path):
     assert "--calibration" not in no_cal[0]
     # a multi-view fit's params carry no single-view settings (changing those re-runs nothing)
     assert all('"multiview"' in f and '"singleview"' not in f for f in fits)
+
+
+def test_dry_run_of_the_footage_config_uses_the_pretrained_detectors(tmp_path):
+    """`make footage`: the example clip's row takes the pretrained detectors with its signer
+    box, the frames resized at ingest, a single-view fit, the demo avatar and the footage
+    measures; the clip and the models come from the fetch rules when the cache lacks them."""
+    cache = tmp_path / "cache"
+    cfg = tmp_path / "over.yaml"
+    cfg.write_text(yaml.safe_dump({"results": str(tmp_path / "r"),
+                                   "perception": {"pretrained": {"cache": str(cache)}}}))
+    sheet = (ROOT / "config" / "footage.tsv").read_text().replace(
+        "models/cache/demovideo.mp4", f"{cache}/demovideo.mp4")
+    (tmp_path / "footage.tsv").write_text(sheet)
+    over = yaml.safe_load((ROOT / "config" / "footage.yaml").read_text())
+    over["sequences"] = str(tmp_path / "footage.tsv")
+    over["report"] = {"html": str(tmp_path / "report" / "index.html")}
+    (tmp_path / "footage.yaml").write_text(yaml.safe_dump(over))
+    res = snakemake("-n", "-p", "--configfile", "config/config.yaml",
+                    str(tmp_path / "footage.yaml"), str(cfg))
+    assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
+    counts = job_counts(res.stdout)
+    for rule in ("fetch_models", "fetch_assets", "extract_frames", "segment", "detect_keypoints",
+                 "perception_quality", "fit_smplx", "train_avatar", "evaluate_avatar", "report"):
+        assert counts.get(rule) == 1, (rule, counts)
+    assert "simulate" not in counts
+    seg = [line for line in res.stdout.splitlines() if " -m signsplat segment " in line][0]
+    assert "--detectors pretrained" in seg and '"box": [213.0, 14.0, 150.0, 242.0]' in seg

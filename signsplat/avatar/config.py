@@ -87,10 +87,21 @@ class StrategyConfig:
 
 
 @dataclass
+class PartWeights:
+    body: float
+    face: float
+    hands: float
+
+
+@dataclass
 class RegularizeConfig:
     enabled: bool  # neighbourhood variance terms (paper Table 5 "Reg.")
-    radius: float  # m
+    radius: float  # m, in the space of position and scaled attributes
     max_neighbours: int
+    attribute_scale: float  # m per unit of attribute difference; 0 = proximity only
+    similarity: tuple[str, ...]  # attributes that count in the distance
+    face_apart: bool  # head points never neighbours of body/hand points
+    part_weights: PartWeights  # weight of each point's variance term by its part
     w_scale: float
     w_rotation: float
     w_opacity: float

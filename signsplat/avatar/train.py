@@ -364,6 +364,7 @@ class AvatarTrainer:
             "viewmats": self.viewmats.detach().cpu() if self.cameras.enabled else None,
             "optimizer": self.optimizer.state_dict(),
             "strategy": self.strategy_state,
+            "regularizer": self.regularizer.state_dict(),
             "sampler": self.sampler.get_state(),
             "torch_rng": torch.get_rng_state(),
             "log": list(self.log_rows),
@@ -390,6 +391,7 @@ class AvatarTrainer:
         for group in self.optimizer.param_groups:  # checkpoints from before the lr schedule
             group.setdefault("base_lr", group["lr"])
         self.strategy_state = state["strategy"]
+        self.regularizer.load_state_dict(state.get("regularizer", {}))
         self.sampler.set_state(state["sampler"])
         torch.set_rng_state(state["torch_rng"])
         self.step = int(state["step"])

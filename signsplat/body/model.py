@@ -90,6 +90,25 @@ def rigid_transforms(rotmats: Tensor, rest_joints: Tensor, parents: Tensor,
     return posed_joints, A
 
 
+def pose_shaped(v_shaped: Tensor, rest_joints: Tensor, pose: Tensor, posedirs: Tensor,
+                lbs_weights: Tensor, parents: Tensor, levels: list[Tensor],
+                transl: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """SMPL-X posing of shaped vertices: pose blend shapes, forward kinematics, LBS.
+
+    v_shaped (B, V, 3), rest_joints (B, J, 3), pose (B, J, 3) axis-angle, posedirs
+    ((J - 1) * 9, V * 3), lbs_weights (V, J), transl (B, 3). Returns the posed vertices
+    (B, V, 3), joints (B, J, 3) (both translated) and the LBS transforms A (B, J, 4, 4).
+    """
+    B = pose.shape[0]
+    rotmats = axis_angle_to_matrix(pose)
+    eye = torch.eye(3, dtype=pose.dtype, device=pose.device)
+    pose_feature = (rotmats[:, 1:] - eye).reshape(B, -1)
+    v_posed = v_shaped + (pose_feature @ posedirs).reshape(B, -1, 3)
+    joints, A = rigid_transforms(rotmats, rest_joints, parents, levels)
+    verts = skin_points(v_posed, lbs_weights, A, transl)
+    return verts, joints + transl.unsqueeze(1), A
+
+
 def skin_points(points: Tensor, weights: Tensor, transforms: Tensor,
                 transl: Tensor | None = None) -> Tensor:
     """Pose canonical points with LBS.
@@ -288,14 +307,12 @@ class BodyModel(nn.Module):
 
     def lbs(self, coeffs: Tensor, pose: Tensor, transl: Tensor) -> BodyOutput:
         """Core LBS: coeffs (B, num_betas + num_expression), pose (B, 55, 3), transl (B, 3)."""
-        B = pose.shape[0]
         v_shaped = self.v_template + torch.einsum("bl,vkl->bvk", coeffs, self.shapedirs)
         rest_joints = torch.einsum("jv,bvk->bjk", self.J_regressor, v_shaped)
-        rotmats = axis_angle_to_matrix(pose)
-        eye = torch.eye(3, dtype=pose.dtype, device=pose.device)
-        pose_feature = (rotmats[:, 1:] - eye).reshape(B, -1)
-        v_posed = v_shaped + (pose_feature @ self.posedirs).reshape(B, -1, 3)
-        levels = [getattr(self, f"_level{i}") for i in range(self._num_levels)]
-        posed_joints, A = rigid_transforms(rotmats, rest_joints, self.parents, levels)
-        verts = skin_points(v_posed, self.lbs_weights, A, transl)
-        return BodyOutput(verts, posed_joints + transl.unsqueeze(1), A, v_shaped)
+        verts, joints, A = pose_shaped(v_shaped, rest_joints, pose, self.posedirs,
+                                       self.lbs_weights, self.parents, self.levels(), transl)
+        return BodyOutput(verts, joints, A, v_shaped)
+
+    def levels(self) -> list[Tensor]:
+        """Joint indices per depth of the kinematic tree (for :func:`rigid_transforms`)."""
+        return [getattr(self, f"_level{i}") for i in range(self._num_levels)]

@@ -202,7 +202,7 @@ class KeypointModel(torch.nn.Module):
         assert V >= S
 
     def _sparse_forward(self, inputs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        from signsplat.body.model import axis_angle_to_matrix, rigid_transforms, skin_points
+        from signsplat.body.model import pose_shaped
 
         m = self.model
         ref = self._v_template
@@ -226,14 +226,8 @@ class KeypointModel(torch.nn.Module):
         transl = blk("transl", 3)
         v_shaped = self._v_template + torch.einsum("bl,vkl->bvk", coeffs, self._shapedirs)
         rest_joints = self._J_template + torch.einsum("bl,jkl->bjk", coeffs, self._J_dirs)
-        rotmats = axis_angle_to_matrix(pose)
-        eye = torch.eye(3, dtype=ref.dtype, device=ref.device)
-        feat = (rotmats[:, 1:] - eye).reshape(B, -1)
-        v_posed = v_shaped + (feat @ self._posedirs).reshape(B, -1, 3)
-        levels = [getattr(m, f"_level{i}") for i in range(m._num_levels)]
-        joints, A = rigid_transforms(rotmats, rest_joints, m.parents, levels)
-        verts = skin_points(v_posed, self._weights, A, transl)
-        joints = joints + transl[:, None]
+        verts, joints, _ = pose_shaped(v_shaped, rest_joints, pose, self._posedirs,
+                                       self._weights, m.parents, m.levels(), transl)
         kp = torch.einsum("ks,bsc->bkc", self._Wv, verts) + torch.einsum("kj,bjc->bkc",
                                                                          self._Wj, joints)
         return joints, kp

@@ -131,10 +131,10 @@ def pnp(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarray
     are not all collinear. Returns ``(R (3,3), t (3,), rms reprojection px)`` or None when the
     solve fails or puts points behind the camera.
     """
-    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
-    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    if len(obj) < 4 or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+    pts = _pnp_points(object_points, image_points, 4)
+    if pts is None:
         return None
+    obj, img = pts
     try:
         ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
         if not ok:
@@ -142,11 +142,32 @@ def pnp(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarray
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)
     except cv2.error:
         return None
+    return _accepted_pose(rvec, tvec, obj, img, K)
+
+
+def _pnp_points(object_points: np.ndarray, image_points: np.ndarray, minimum: int
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's (N,1,3) and (N,1,2) float64 arrays, or None for fewer than ``minimum``
+    points or a non-finite value."""
+    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    if len(obj) < minimum or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+        return None
+    return obj, img
+
+
+def _accepted_pose(rvec: np.ndarray, tvec: np.ndarray, obj: np.ndarray, img: np.ndarray,
+                   K: np.ndarray, keep: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``(R, t, rms px over the points keep)`` of a solved pose (every point when ``keep`` is
+    None), or None when it is not finite or puts over 10 % of the points behind the camera."""
     R, _ = cv2.Rodrigues(rvec)
     t = tvec.reshape(3)
     depth = (obj.reshape(-1, 3) @ R.T + t)[:, 2]
     if not np.isfinite(R).all() or (depth <= 0).mean() > 0.1:
         return None
+    if keep is not None:
+        obj, img = obj[keep], img[keep]
     proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
     rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2, -1))))
     return R, t, rms
@@ -201,10 +222,10 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
     inlier reprojection distance. Returns ``(R, t, rms px of the inliers, inlier fraction)`` or
     None when fewer than 6 points, no consensus, or points behind the camera.
     """
-    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
-    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    if len(obj) < 6 or not (np.isfinite(obj).all() and np.isfinite(img).all()):
+    pts = _pnp_points(object_points, image_points, 6)
+    if pts is None:
         return None
+    obj, img = pts
     cv2.setRNGSeed(seed)
     try:
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
@@ -216,15 +237,8 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
         rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
     except cv2.error:
         return None
-    R, _ = cv2.Rodrigues(rvec)
-    t = tvec.reshape(3)
-    depth = (obj.reshape(-1, 3) @ R.T + t)[:, 2]
-    if not np.isfinite(R).all() or (depth <= 0).mean() > 0.1:
-        return None
-    proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, K, None)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img[inl].reshape(-1, 2)) ** 2,
-                                       -1))))
-    return R, t, rms, len(inl) / len(obj)
+    pose = _accepted_pose(rvec, tvec, obj, img, K, inl)
+    return None if pose is None else (*pose, len(inl) / len(obj))
 
 
 def projection_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -253,45 +267,3 @@ def triangulate(P: np.ndarray, uv: np.ndarray, w: np.ndarray, min_views: int = 2
     z = np.einsum("vij,nj->vni", P[:, :, :3], X) + P[:, None, :, 3]
     front = ((z[..., 2] > 0) | (w <= 0)).all(0)
     return np.where((ok & front)[:, None], X, 0.0), ok & front
-
-
-def leave_one_out_px(K: np.ndarray, R: np.ndarray, t: np.ndarray, uv: np.ndarray,
-                     w: np.ndarray, mirror: np.ndarray | None = None) -> np.ndarray:
-    """Multi-view consistency of a rig: per view, the median distance (px) between its
-    observations and the points triangulated from the OTHER views, reprojected.
-
-    K, R, t (V,...); uv (V,N,2) observations of N points (e.g. keypoints x frames), w (V,N).
-    Robust to a bad view or detection among the others: each point is triangulated from every
-    pair of other views and the smallest of the pairs' reprojection errors is kept (a wrong
-    camera ``v`` misses the points of the good pairs, and garbage points of a bad pair
-    rarely land on the detection). ``mirror
-    (N,)``: index of each point's left/right counterpart; a view's error is then the smaller
-    of the two (detectors confuse sides; this tests the camera, not the labels).
-    Returns (V,) medians; NaN for a view with fewer than 5 testable points.
-    """
-    V, N = w.shape
-    P = projection_matrices(K, R, t)
-    out = np.full(V, np.nan)
-    for v in range(V):
-        others = [u for u in range(V) if u != v]
-        errs = []
-        for i, a in enumerate(others):
-            for b in others[i + 1:]:
-                X, ok = triangulate(P[[a, b]], uv[[a, b]], w[[a, b]])
-                xc = X @ R[v].T + t[v]
-                ok = ok & (xc[:, 2] > 1e-3)
-                proj = (xc / np.where(ok, xc[:, 2], 1.0)[:, None]) @ K[v].T
-                e = np.where(w[v] > 0, np.linalg.norm(proj[:, :2] - uv[v], axis=-1), np.inf)
-                if mirror is not None:
-                    em = np.where(w[v][mirror] > 0,
-                                  np.linalg.norm(proj[:, :2] - uv[v][mirror], axis=-1), np.inf)
-                    e = np.minimum(e, em)
-                errs.append(np.where(ok & np.isfinite(e), e, np.nan))
-        if not errs:
-            continue
-        E = np.stack(errs)
-        seen = np.isfinite(E).any(0)
-        if seen.sum() < 5:
-            continue
-        out[v] = float(np.median(np.nanmin(E[:, seen], axis=0)))
-    return out

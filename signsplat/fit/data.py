@@ -36,32 +36,52 @@ def _read_columns(path, columns) -> pd.DataFrame:
         raise InputError(str(exc)) from None
 
 
+def mean_rotation(Rs: np.ndarray) -> np.ndarray:
+    """Chordal L2 mean (3,3) of rotations ``Rs (F,3,3)``: the rotation nearest to their
+    element-wise mean (SVD projection)."""
+    U, _, Vt = np.linalg.svd(np.mean(Rs, axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
 def read_rig(path: str | os.PathLike, with_extrinsics: bool = True) -> tuple[Rig, str]:
     """Static cameras from a ``cameras`` table -> (Rig sorted by view, scene name).
 
-    Rows with ``frame == -1`` (or the first row of each view) are used. With
+    A view's static row (``frame == -1``) is used when it has one; a view with per-frame rows
+    only (the simulator's ``camera_jitter``) gets its *mean camera*: the chordal mean of the
+    rotations and the mean of the centres (the fit models static cameras, so that is what it
+    is measured against). Intrinsics and sizes come from the view's first row. With
     ``with_extrinsics=False`` R, t are set to identity/zero (only intrinsics and sizes read).
     """
     df = _read(path, "cameras")
     if df.empty:
         raise InputError(f"{path}: cameras table has no rows")
-    df = df.sort_values(["view", "frame"]).groupby("view", as_index=False).first()
-    views = df["view"].to_numpy()
+    df = df.sort_values(["view", "frame"])
+    first = df.groupby("view", as_index=False).first()
+    views = first["view"].to_numpy()
     if not np.array_equal(views, np.arange(len(views))):
         raise InputError(f"{path}: views must be 0..{len(views) - 1}, got {views.tolist()}")
-    K = np.zeros((len(df), 3, 3))
-    K[:, 0, 0], K[:, 1, 1] = df["fx"], df["fy"]
-    K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = df["cx"], df["cy"], 1.0
+    K = np.zeros((len(first), 3, 3))
+    K[:, 0, 0], K[:, 1, 1] = first["fx"], first["fy"]
+    K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = first["cx"], first["cy"], 1.0
+    R, t = np.tile(np.eye(3), (len(first), 1, 1)), np.zeros((len(first), 3))
     if with_extrinsics:
-        R = np.stack([np.asarray(r, float).reshape(3, 3) for r in df["R"]])
-        t = np.stack([np.asarray(x, float).reshape(3) for x in df["t"]])
-    else:
-        R, t = np.tile(np.eye(3), (len(df), 1, 1)), np.zeros((len(df), 3))
+        for v, rows in df.groupby("view"):
+            static = rows[rows["frame"] == -1]
+            rows = static if len(static) else rows
+            Rs = np.stack([np.asarray(r, float).reshape(3, 3) for r in rows["R"]])
+            ts = np.stack([np.asarray(x, float).reshape(3) for x in rows["t"]])
+            if len(Rs) == 1:
+                R[v], t[v] = Rs[0], ts[0]
+            else:
+                R[v] = mean_rotation(Rs)
+                centre = -np.einsum("fji,fj->fi", Rs, ts).mean(0)
+                t[v] = -R[v] @ centre
     vals = np.concatenate([K.reshape(-1), R.reshape(-1), t.reshape(-1)])
     if not np.isfinite(vals).all() or (K[:, 0, 0] <= 0).any():
         raise InputError(f"{path}: non-finite or non-positive camera values")
-    return Rig(K=K, R=R, t=t, width=df["width"].to_numpy(int),
-               height=df["height"].to_numpy(int)), str(df["scene"].iloc[0])
+    return Rig(K=K, R=R, t=t, width=first["width"].to_numpy(int),
+               height=first["height"].to_numpy(int)), str(first["scene"].iloc[0])
 
 
 def read_keypoints(path: str | os.PathLike, num_views: int,

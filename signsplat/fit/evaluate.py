@@ -167,7 +167,8 @@ FIT_EVAL = register_table(Table(
         "keypoints": "str detected or ground_truth (which 2D keypoints were fitted)",
         "metric": "str mpjpe, pa_mpjpe, reprojection, camera_rotation, camera_centre, jitter, "
                   "image_error (px between the fitted and the true body in the images), "
-                  "scale, seconds, ...",
+                  "cameras_unplaced (views the initialisation could not place; not in the "
+                  "camera errors), scale, seconds, ...",
         "part": "str body, upper_body, left_hand, right_hand, hands, face, head (image_error), "
                 "all, cameras",
         "value": "float64 the figure (NaN when not measurable)",
@@ -253,7 +254,10 @@ def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode:
         if gt_rig.num_views != rig.num_views:
             raise InputError(f"{gt_cameras}: {gt_rig.num_views} cameras, the fit has "
                              f"{rig.num_views}")
-        ok = [v for v, s in enumerate(result.camera_status) if s != "no_detections"]
+        # cameras without detections or that could not be placed are not measured (counted
+        # in the row cameras_unplaced instead)
+        ok = [v for v, s in enumerate(result.camera_status)
+              if s not in ("no_detections", "unplaced")] or list(range(rig.num_views))
 
         def sub(r):
             return Rig(K=r.K[ok], R=r.R[ok], t=r.t[ok], width=r.width[ok], height=r.height[ok])
@@ -266,7 +270,9 @@ def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode:
                      ("camera_centre", "cameras", cam["centre_m_mean"], "m"),
                      ("camera_centre_max", "cameras", cam["centre_m_max"], "m"),
                      ("camera_focal_rel", "cameras", cam["focal_rel_err_mean"], "1"),
-                     ("gauge_scale", "cameras", cam["scale"], "1")]
+                     ("gauge_scale", "cameras", cam["scale"], "1"),
+                     ("cameras_unplaced", "cameras",
+                      float(sum(s == "unplaced" for s in result.camera_status)), "1")]
     else:
         sim = None
     if gt_smplx:

@@ -1,12 +1,12 @@
 """Multi-view fit: SMPL-X over a sequence and the extrinsics of every camera, jointly.
 
-1. Cameras are initialised without ground truth (config ``camera_init``, default ``auto``):
-   per view the candidates PnP of the neutral body's head/torso keypoints (rest pose, mean
-   shape, at the origin) against the median of its first frames' detections, PnP-RANSAC on
-   every confident detection of those frames, and the coarse arc prior from the config; the
-   rig is chosen by multi-view consistency (leave-one-out triangulation). This defines the
-   world frame: the body-anchored frame of the first frames (y up, the signer facing +z).
-2. Gauge: the reference camera (the initialised view with the most observations) is held fixed,
+1. Cameras are initialised without ground truth and without assuming the rig (config
+   ``camera_init``, default ``auto``): hypotheses from 2D-2D keypoint correspondences across
+   views, from PnP of the rest body and from the configured arc prior, scored on held-out
+   keypoints (:mod:`signsplat.fit.rig_init`). This defines the world frame: the rest body's
+   frame at the first frames (y up, the signer facing +z). A view no hypothesis places is
+   reported ``unplaced``: its keypoints are left out and its camera is held fixed.
+2. Gauge: the reference camera (the placed view with the most observations) is held fixed,
    which removes the 6-DoF world-frame freedom. Scale: with free extrinsics a uniform body
    scale is unobservable (the proxy's beta 0 is one), so the shape prior sets it; the
    evaluation's similarity alignment absorbs it.
@@ -16,7 +16,12 @@
 3. Stages (config ``fit.multiview.stages``) run with Adam: first per chunk of frames, each chunk
    warm-started from the previous chunk's last frame (cameras fixed), then jointly over the
    whole sequence with betas and the free cameras; the final joint stage is Levenberg-Marquardt
-   over everything (:mod:`signsplat.fit.levenberg_marquardt`), which the torso chain's conditioning needs.
+   over everything (:mod:`signsplat.fit.levenberg_marquardt`), which the torso chain's
+   conditioning needs.
+
+The fit models static cameras; with per-frame camera motion (the simulator's camera_jitter)
+it finds one camera per view, evaluated against the mean camera
+(:func:`signsplat.fit.data.read_rig`).
 """
 
 from __future__ import annotations
@@ -28,24 +33,17 @@ import cv2
 import numpy as np
 import torch
 
-from signsplat.body import joints as body_joints
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
-from signsplat.fit.cameras import (CameraParams, Rig, leave_one_out_px, pnp, pnp_ransac,
-                                   projection_matrices, rig_prior, rig_up_direction,
+from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_up_direction,
                                    triangulate)
 from signsplat.fit.flow import flow_targets
+from signsplat.fit.rig_init import PNP_KEYPOINTS, exchange_sides, initial_rig, side_swaps
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
 
 log = logging.getLogger(__name__)
-
-#: Keypoints that move rigidly with the head and torso: nose, eyes, ears, shoulders, hips, face.
-PNP_KEYPOINTS = tuple(range(0, 7)) + (11, 12) + body_joints.KP_FACE
-#: Keypoints of the multi-view consistency test (camera_init auto): the COCO body points down
-#: to the hips (the most reliable detections), over the first frames.
-CONSISTENCY_KEYPOINTS = tuple(range(0, 13))
 
 
 def neutral_keypoints(kpm: KeypointModel, dtype=torch.float32, device="cpu") -> np.ndarray:
@@ -53,182 +51,6 @@ def neutral_keypoints(kpm: KeypointModel, dtype=torch.float32, device="cpu") -> 
     with torch.no_grad():
         _, kp, _ = kpm(transl=torch.zeros(1, 3, dtype=dtype, device=device))
     return kp[0].double().cpu().numpy()
-
-
-def median_observation(obs_v: np.ndarray, frames: int) -> np.ndarray:
-    """Per-keypoint median over the first ``frames`` frames that observe it.
-
-    obs_v (T,133,3) of one view -> (133,3): x, y and the fraction of those frames observing it.
-    """
-    out = np.zeros((obs_v.shape[1], 3))
-    for k in range(obs_v.shape[1]):
-        ok = np.nonzero(obs_v[:, k, 2] > 0)[0][:frames]
-        if len(ok):
-            out[k, :2] = np.median(obs_v[ok, k, :2], axis=0)
-            out[k, 2] = len(ok) / frames
-    return out
-
-
-def _pooled_correspondences(kp_neutral: np.ndarray, obs_v: np.ndarray, frames: int,
-                             min_score: float) -> tuple[np.ndarray, np.ndarray]:
-    """Neutral-body points and their detections over the first ``frames`` observed frames of
-    one view (head/torso keypoints with score >= ``min_score``): (N,3), (N,2)."""
-    idx = np.asarray(PNP_KEYPOINTS)
-    seen = np.nonzero((obs_v[:, idx, 2] > 0).any(1))[0][:frames]
-    o = obs_v[seen][:, idx]  # (F,K,3)
-    m = o[..., 2] >= min_score
-    return np.broadcast_to(kp_neutral[idx], o[..., :3].shape)[m], o[..., :2][m]
-
-
-#: Left/right counterpart of each consistency keypoint (nose stays).
-_MIRROR = (0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11)
-
-
-def _consistency_points(obs: np.ndarray, frames: int
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Observations (V,N,2), weights (V,N) and left/right counterparts (N,) of the
-    consistency keypoints over the ``2 frames`` frames observed most (earliest first)."""
-    idx = np.asarray(CONSISTENCY_KEYPOINTS)
-    busy = (obs[:, :, idx, 2] > 0).sum((0, 2))
-    sel = np.sort(np.argsort(-busy, kind="stable")[:max(frames, 1) * 2])
-    o = obs[:, sel][:, :, idx]  # (V,F,K,3)
-    V, F, Kn = o.shape[:3]
-    mirror = (np.arange(F)[:, None] * Kn + np.asarray(_MIRROR)[None]).reshape(-1)
-    return o[..., :2].reshape(V, -1, 2), o[..., 2].reshape(V, -1), mirror
-
-
-def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
-                cfg: dict) -> tuple[Rig, list[str], np.ndarray]:
-    """Cameras without ground truth; returns (rig, status per view, rms px per view).
-
-    obs (V,T,133,3) cleaned observations; K (V,3,3). ``cfg['camera_init']``:
-
-    - ``pnp``: each view's PnP of the neutral body against the median of its first frames'
-      detections; the arc prior where PnP fails or is implausible;
-    - ``rig_prior``: the arc prior for every view with detections;
-    - ``auto``: per view the candidates PnP (median), PnP-RANSAC (every confident detection of
-      the first frames, outliers rejected) and the arc prior; the rig is chosen by multi-view
-      consistency (:func:`signsplat.fit.cameras.leave_one_out_px`: body keypoints triangulated
-      from the other views must reproject onto each view's detections): first the best of
-      the three uniform rigs, then per view the candidate that lowers its leave-one-out error
-      (two rounds). Noisy detections (a few-pixel face, swapped sides) make single-view PnP
-      tens of degrees wrong; the consistency test catches it. PnP candidates whose distance
-      to the body is off the prior's by more than ``pnp_distance_tolerance`` are dropped, and
-      a PnP rig must beat the prior rig by the factor ``prior_margin``.
-
-    Status per view: 'pnp', 'pnp_ransac', 'prior' or 'no_detections'.
-    """
-    V = obs.shape[0]
-    idx = np.asarray(PNP_KEYPOINTS)
-    chest = kp_neutral[[5, 6]].mean(0)
-    prior = rig_prior(K, width, height, V, cfg["camera_prior"]["arc_degrees"],
-                      cfg["camera_prior"]["distance"], chest)
-    R, t = prior.R.copy(), prior.t.copy()
-    mode = cfg["camera_init"]
-    status, rms = [], np.full(V, np.nan)
-    cands: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
-    for v in range(V):
-        med = median_observation(obs[v], cfg["init_frames"])
-        m = med[idx, 2] > 0
-        cands.append({})
-        if not m.any():
-            status.append("no_detections")
-            continue
-        cands[v]["prior"] = (prior.R[v], prior.t[v])
-        if mode == "rig_prior":
-            status.append("prior")
-            continue
-        sol = None
-        if m.sum() >= cfg["pnp_min_points"]:
-            sol = pnp(kp_neutral[idx][m], med[idx][m][:, :2], K[v])
-        if sol is not None and sol[2] <= cfg["pnp_max_rms_px"] and \
-                np.linalg.norm(sol[1]) <= cfg["pnp_max_distance_m"] and \
-                (mode != "auto" or _plausible_distance(sol[0], sol[1], chest, cfg)):
-            cands[v]["pnp"] = (sol[0], sol[1])
-            rms[v] = sol[2]
-        elif sol is not None:
-            rms[v] = sol[2]
-        if mode == "auto":
-            X, x = _pooled_correspondences(kp_neutral, obs[v], cfg["init_frames"],
-                                           cfg["ransac_min_score"])
-            thr = cfg["ransac_threshold"] * float(np.asarray(height)[v])
-            rs = pnp_ransac(X, x, K[v], thr)
-            if rs is not None and rs[3] >= cfg["ransac_min_inliers"] and \
-                    np.linalg.norm(rs[1]) <= cfg["pnp_max_distance_m"] and \
-                    _plausible_distance(rs[0], rs[1], chest, cfg):
-                cands[v]["pnp_ransac"] = (rs[0], rs[1])
-        best = "pnp" if "pnp" in cands[v] else "prior"
-        R[v], t[v] = cands[v][best]
-        status.append(best)
-    if mode == "auto":
-        R, t, status = _choose_by_consistency(cands, obs, np.asarray(K, float), R, t, status,
-                                              cfg["init_frames"], cfg["prior_margin"])
-    return Rig(K=np.asarray(K, float), R=R, t=t, width=np.asarray(width),
-               height=np.asarray(height)), status, rms
-
-
-def _plausible_distance(R: np.ndarray, t: np.ndarray, chest: np.ndarray, cfg: dict) -> bool:
-    """A PnP camera's distance to the chest is within ``pnp_distance_tolerance`` (a ratio) of
-    the rig prior's distance. Multi-view consistency cannot catch a rig that is consistently
-    too close: with biased detections PnP of the neutral body can put every camera at half the
-    distance, and such a rig still triangulates the few body points consistently."""
-    d = float(np.linalg.norm(R @ chest + t))
-    ref = float(cfg["camera_prior"]["distance"])
-    tol = float(cfg["pnp_distance_tolerance"])
-    return ref / tol <= d <= ref * tol
-
-
-def _choose_by_consistency(cands, obs, K, R, t, status, frames, prior_margin=1.0):
-    """Candidate cameras per view chosen by leave-one-out multi-view consistency.
-
-    A uniform PnP rig replaces the uniform prior rig only when its leave-one-out error is
-    below ``prior_margin`` times the prior's (the configured rig is trusted unless clearly
-    beaten: a few body points from a narrow-baseline rig leave ambiguous configurations)."""
-    uv, w, mirror = _consistency_points(obs, frames)
-    live = [v for v in range(len(cands)) if cands[v]]
-    if len(live) < 3:
-        return R, t, status
-
-    def score(Rs, ts):
-        e = leave_one_out_px(K[live], Rs[live], ts[live], uv[live], w[live], mirror)
-        return float(np.nanmedian(e)) if np.isfinite(e).any() else np.inf, e
-
-    best, best_s = None, np.inf
-    for name in ("prior", "pnp", "pnp_ransac"):
-        Rs, ts, st = R.copy(), t.copy(), list(status)
-        for v in live:
-            key = name if name in cands[v] else next(
-                k for k in ("pnp_ransac", "pnp", "prior") if k in cands[v])
-            Rs[v], ts[v] = cands[v][key]
-            st[v] = key
-        s, _ = score(Rs, ts)
-        log.info("camera init: uniform rig %r -> leave-one-out median %.2f px", name, s)
-        if name == "prior":
-            s = s * prior_margin
-        if s < best_s:
-            best, best_s = (Rs, ts, st), s
-    if best is None:
-        return R, t, status
-    R, t, status = best
-    for _ in range(2):
-        changed = False
-        for i, v in enumerate(live):
-            cur = score(R, t)[1][i]
-            for key, (Rc, tc) in cands[v].items():
-                if key == status[v]:
-                    continue
-                R2, t2 = R.copy(), t.copy()
-                R2[v], t2[v] = Rc, tc
-                e = score(R2, t2)[1][i]
-                if np.isfinite(e) and (not np.isfinite(cur) or e < 0.8 * cur):
-                    R, t, cur = R2, t2, e
-                    status = list(status)
-                    status[v] = key
-                    changed = True
-        if not changed:
-            break
-    log.info("camera init: chosen %s", status)
-    return R, t, status
 
 
 def initial_root(kpm: KeypointModel, rig: Rig, obs: np.ndarray, T: int, dtype=torch.float32,
@@ -297,6 +119,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         solved = list(range(V))
         rms = np.full(V, np.nan)
         ref = -1  # no reference camera: the calibration fixes the world frame
+        extra_log = {"camera_init": "calibrated"}
         cams = CameraParams(rig0, fixed=list(range(V)), refine_focal=False, dtype=dtype,
                             device=device)
         init.update(initial_root(kpm, rig0, obs, T, dtype, device))
@@ -304,18 +127,47 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                  np.round(init["transl"][0], 3).tolist())
     else:
         kp0 = neutral_keypoints(kpm, dtype, device)
-        rig0, status, rms = initial_rig(kp0, obs, K, width, height, mv)
-        ok = ("pnp",) if mv["camera_init"] == "pnp" else ("pnp", "pnp_ransac", "prior")
-        solved = [v for v in range(V) if status[v] in ok]
+        hyp = initial_rig(kp0, obs, K, width, height, mv)
+        if mv["repair_sides"]:  # exchanged sides mislead the initialisation too: once more
+            placed = [v for v, st in enumerate(hyp.status)
+                      if st not in ("no_detections", "unplaced")]
+            thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
+            swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs, thr, views=placed)
+            if swaps.sum() > 0.02 * swaps.size:
+                log.info("camera init: left and right exchanged in %d view-frames; placing "
+                         "the cameras again without them", int(swaps.sum()))
+                hyp = initial_rig(kp0, exchange_sides(obs, swaps), K, width, height, mv)
+        status = hyp.status
+        rig0 = Rig(K=np.asarray(K, float), R=hyp.R, t=hyp.t, width=np.asarray(width),
+                   height=np.asarray(height))
+        solved = [v for v in range(V) if status[v] not in ("no_detections", "unplaced")]
         if not solved:
-            raise ValueError("no camera could be initialised: too few head/torso keypoints in "
-                             "every view's first frames")
+            raise ValueError("no camera could be placed: too few keypoints seen by the views "
+                             "(see the camera init lines of the log)")
+        unplaced = [v for v in range(V) if status[v] == "unplaced"]
+        if unplaced:  # their keypoints would pull the body towards a wrong camera
+            obs = obs.copy()
+            obs[unplaced] = 0.0
+            fitted, count = seq.fitted_mask(obs, cfg["min_keypoints"])
+            if not fitted.any():
+                raise ValueError("no frame has enough keypoints in the placed views")
         ref = max(solved, key=lambda v: views_obs[v])
-        no_det = [v for v in range(V) if status[v] == "no_detections"]
-        cams = CameraParams(rig0, fixed=[ref] + no_det, refine_focal=mv["refine_focal"],
-                            dtype=dtype, device=device)
-        log.info("cameras initialised: %s (reference view %d, PnP rms px %s)", status, ref,
-                 np.round(rms, 2).tolist())
+        fixed = [v for v in range(V) if v == ref or v not in solved]
+        cams = CameraParams(rig0, fixed=fixed, refine_focal=mv["refine_focal"], dtype=dtype,
+                            device=device)
+        rms = hyp.view_px
+        extra_log = {"camera_init": hyp.winner,
+                     **{f"camera_init_{k}_px": float(x) for k, x in hyp.scores.items()}}
+        log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
+                 status, hyp.winner, ref, np.round(rms, 2).tolist())
+    if mv["repair_sides"]:
+        thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
+        swaps = side_swaps(rig0.K, rig0.R, rig0.t, obs, thr, views=solved)
+        if swaps.any():
+            obs = exchange_sides(obs, swaps)
+            log.info("left and right exchanged back in %d view-frames (views %s)",
+                     int(swaps.sum()), sorted(set(np.nonzero(swaps)[0].tolist())))
+        extra_log["side_swaps"] = int(swaps.sum())
     t_init = time.perf_counter()
 
     params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
@@ -362,5 +214,5 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                          num_keypoints=count.astype(np.int64), camera_status=status,
                          seconds={"camera_init": t_init - t0, "solve": t1 - t_init,
                                   "total": t1 - t0},
-                         log={"reference_view": ref, **{f"pnp_rms_px_view{v}": float(r)
-                                                        for v, r in enumerate(rms)}})
+                         log={"reference_view": ref, **extra_log,
+                              **{f"camera_init_px_view{v}": float(r) for v, r in enumerate(rms)}})

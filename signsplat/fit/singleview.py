@@ -31,7 +31,8 @@ from signsplat.fit import objective as obj
 from signsplat.fit import sequence as seq
 from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import CameraParams, Rig, pnp
-from signsplat.fit.multiview import PNP_KEYPOINTS, median_observation, neutral_keypoints
+from signsplat.fit.multiview import neutral_keypoints
+from signsplat.fit.rig_init import PNP_KEYPOINTS, median_observation
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started, stage_config)
 

@@ -1,6 +1,8 @@
 """Atomic file writes: write to a temporary file in the target folder, then rename.
 
-A crash or a kill mid-write leaves the old file (or nothing), never a half-written one.
+A crash or a kill mid-write leaves the old file (or nothing), never a half-written one; its
+temporary file stays behind (readers skip it: :func:`is_temporary`) until the next write of
+the same file removes it.
 """
 
 from __future__ import annotations
@@ -11,6 +13,35 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+# folder -> {target name: temporaries found there} (listed once per folder and process)
+_STALE: dict[Path, dict[str, list[Path]]] = {}
+
+
+def _temporary_target(name: str) -> str | None:
+    """The target name of a temporary ``.<name>.<random>.tmp<suffix>``, else None."""
+    if not (name.startswith(".") and ".tmp" in name):
+        return None
+    stem = name[1:name.rindex(".tmp")]
+    return stem.rsplit(".", 1)[0] if "." in stem else None
+
+
+def _remove_stale(path: Path) -> None:
+    """Remove the temporaries a killed writer of ``path`` left (one writer per file: any
+    temporary of ``path`` that exists before this write is a leftover). The folder is listed
+    once per process; temporaries made later by this process are not in that listing."""
+    folder = path.parent
+    if folder not in _STALE:
+        found: dict[str, list[Path]] = {}
+        with os.scandir(folder) as entries:
+            for e in entries:
+                target = _temporary_target(e.name)
+                if target is not None:
+                    found.setdefault(target, []).append(Path(e.path))
+        _STALE[folder] = found
+    for stale in _STALE[folder].pop(path.name, []):
+        with contextlib.suppress(FileNotFoundError):
+            stale.unlink()
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
@@ -18,10 +49,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
     The temporary name keeps the target's suffix (``suffix`` overrides it) so that writers
     which pick a format from the extension (OpenCV, pyarrow, numpy) still work. On any
-    exception the temporary file is removed and ``path`` is left untouched.
+    exception the temporary file is removed and ``path`` is left untouched. Temporaries of
+    ``path`` left by a writer that was killed are removed first.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale(path)
     fd, tmp = tempfile.mkstemp(
         prefix=f".{path.name}.", suffix=".tmp" + (suffix if suffix is not None else path.suffix),
         dir=path.parent,

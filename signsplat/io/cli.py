@@ -24,6 +24,7 @@ def extract_frames(argv: list[str]) -> int:
         fps=seq.get("fps") or None, start=int(seq.get("start") or 0),
         end=int(seq["end"]) if seq.get("end") not in (None, "") else None, size=size,
         calibration=seq.get("calibration") or None,
+        crop=tuple(int(v) for v in seq["crop"].split(",")) if seq.get("crop") else None,
     )
     print(f"{seq['sequence']}: {frames['view'].nunique()} view(s) x {frames['frame'].nunique()} "
           f"frame(s) in {time.perf_counter() - t0:.1f} s")

@@ -10,6 +10,7 @@ entry per camera in the order of the camera inputs (``R``/``t`` optional: identi
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -51,12 +52,15 @@ def _calibration_table(path: Path, scene: str, sizes: list[tuple[int, int]]) -> 
 def extract_sequence(scene: str, cameras: list[str | os.PathLike], out_dir: str | os.PathLike,
                      fps: float | None = None, start: int = 0, end: int | None = None,
                      size: tuple[int, int] | None = None,
-                     calibration: str | os.PathLike | None = None) -> pd.DataFrame:
+                     calibration: str | os.PathLike | None = None,
+                     crop: tuple[int, int, int, int] | None = None) -> pd.DataFrame:
     """Extract frames ``start..end`` of every camera; returns the ``frames`` table.
 
-    All cameras must yield the same number of frames; otherwise an :class:`InputError` names
-    each file with its count. Nothing is written to ``frames.parquet`` unless every camera
-    decoded completely.
+    ``crop`` = (x, y, w, h) cuts every frame to that box (camera pixels) before ``size``
+    resizes it. All cameras must yield the same number of frames; otherwise an
+    :class:`InputError` names each file with its count. Nothing is written to
+    ``frames.parquet`` unless every camera decoded completely; its metadata records the
+    camera files (``cameras``, JSON list) so later stages can name them.
     """
     out_dir = Path(out_dir)
     cameras = [Path(c) for c in cameras]
@@ -67,8 +71,8 @@ def extract_sequence(scene: str, cameras: list[str | os.PathLike], out_dir: str 
     for view, cam in enumerate(cameras):
         n = 0
         shape = None
-        for index, rgb in tqdm(iter_frames(cam, start, end, size), desc=f"{scene} view {view}",
-                               unit="frame", leave=False):
+        for index, rgb in tqdm(iter_frames(cam, start, end, size, crop),
+                               desc=f"{scene} view {view}", unit="frame", leave=False):
             rel = f"images/{view:02d}/{index - start:04d}.png"
             write_png(out_dir / rel, rgb)
             shape = rgb.shape
@@ -86,5 +90,6 @@ def extract_sequence(scene: str, cameras: list[str | os.PathLike], out_dir: str 
     if calibration:
         write_table(_calibration_table(Path(calibration), scene, sizes),
                     out_dir / "cameras.parquet", "cameras")
-    write_table(frames, out_dir / "frames.parquet", "frames", metadata={"fps": str(fps)})
+    write_table(frames, out_dir / "frames.parquet", "frames",
+                metadata={"fps": str(fps), "cameras": json.dumps([str(c) for c in cameras])})
     return frames

@@ -29,6 +29,18 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
     return cv2.resize(frame, tuple(size), interpolation=cv2.INTER_AREA)
 
 
+def _crop(frame: np.ndarray, crop: tuple[int, int, int, int] | None, where: str) -> np.ndarray:
+    """``frame[y:y+h, x:x+w]``; a box reaching outside the frame is an error naming it."""
+    if crop is None:
+        return frame
+    x, y, w, h = (int(v) for v in crop)
+    H, W = frame.shape[:2]
+    if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > W or y + h > H:
+        raise InputError(f"{where}: crop box x,y,w,h = {x},{y},{w},{h} does not fit the "
+                         f"{W}x{H} frame")
+    return np.ascontiguousarray(frame[y:y + h, x:x + w])
+
+
 def video_fps(path: str | os.PathLike) -> float | None:
     """Average frame rate of a video file, or None for an image folder."""
     path = Path(path)
@@ -45,11 +57,14 @@ def video_fps(path: str | os.PathLike) -> float | None:
 
 
 def iter_frames(path: str | os.PathLike, start: int = 0, end: int | None = None,
-                size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+                size: tuple[int, int] | None = None,
+                crop: tuple[int, int, int, int] | None = None
+                ) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(index, rgb uint8 (H,W,3))`` for frames ``start <= index < end``.
 
-    ``path`` is a video file or a folder of images (sorted by name). ``size`` = (W, H)
-    resizes every frame.
+    ``path`` is a video file or a folder of images (sorted by name). ``crop`` = (x, y, w, h)
+    cuts every frame to that box first, ``size`` = (W, H) then resizes it. A frame that
+    cannot be decoded is an error naming the file and the frame.
     """
     path = Path(path)
     if not path.exists():
@@ -62,24 +77,27 @@ def iter_frames(path: str | os.PathLike, start: int = 0, end: int | None = None,
             image = cv2.imread(str(file), cv2.IMREAD_COLOR)
             if image is None:
                 raise InputError(f"{file}: not a readable image")
-            yield index, _resize(image[..., ::-1], size)
+            yield index, _resize(_crop(image[..., ::-1], crop, str(file)), size)
         return
     try:
         container = av.open(str(path))
     except av.FFmpegError as exc:
-        raise InputError(f"{path}: unreadable video ({exc})") from None
+        raise InputError(f"{path}: unreadable video, frame 0 cannot be read ({exc})") from None
     with container:
         if not container.streams.video:
             raise InputError(f"{path}: file has no video stream")
+        index = -1
         try:
             for index, frame in enumerate(container.decode(video=0)):
                 if index < start:
                     continue
                 if end is not None and index >= end:
                     break
-                yield index, _resize(frame.to_ndarray(format="rgb24"), size)
+                rgb = _crop(frame.to_ndarray(format="rgb24"), crop, f"{path}: frame {index}")
+                yield index, _resize(rgb, size)
         except av.FFmpegError as exc:
-            raise InputError(f"{path}: corrupt video, decoding failed ({exc})") from None
+            raise InputError(f"{path}: corrupt video, decoding failed at frame {index + 1} "
+                             f"({exc})") from None
 
 
 class VideoWriter:

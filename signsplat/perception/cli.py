@@ -1,6 +1,7 @@
 """Commands of the perception stages: ``segment``, ``detect-keypoints``, ``perception-eval``,
-``train-detectors``. Each takes the ``perception`` config section as JSON (``--config-json``;
-missing keys get the schema defaults)."""
+``perception-quality``, ``train-detectors``. Each takes the ``perception`` config section as
+JSON (``--config-json``; missing keys get the schema defaults) and ``--detectors`` (shipped or
+pretrained; :mod:`signsplat.perception.detectors`)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from pathlib import Path
 from signsplat.config import validate
 from signsplat.device import add_runtime_args
 from signsplat.io.tables import write_table
-from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
+from signsplat.perception.detectors import DETECTORS, detector_specs, specs
 
 SCHEMA = "stages/perception.schema.yaml"
 
@@ -24,27 +25,13 @@ def perception_config(text: str | None) -> dict:
     return validate(data, SCHEMA, "--config-json")
 
 
-def specs(cfg: dict, device: str = "auto") -> tuple[SegmenterSpec, KeypointSpec]:
-    """Model specs from a validated ``perception`` section, run on ``device``."""
-    s, k = cfg["segmenter"], cfg["keypoints"]
-    seg = SegmenterSpec(
-        path=s["model"], input_size=tuple(s["input_size"]) if s["input_size"] else None,
-        mean=tuple(s["mean"]), std=tuple(s["std"]), color_order=s["color_order"],
-        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"],
-        device=device)
-    kp = KeypointSpec(
-        path=k["model"], input_size=tuple(k["input_size"]) if k["input_size"] else None,
-        mean=tuple(k["mean"]), std=tuple(k["std"]), color_order=k["color_order"],
-        split_ratio=float(k["split_ratio"]), padding=float(k["padding"]),
-        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"],
-        device=device)
-    return seg, kp
-
-
 def _parser(prog: str, doc: str) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"signsplat {prog}", description=doc)
     p.add_argument("--config-json", default=None, help="the perception config section (JSON)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--detectors", choices=DETECTORS, default="shipped",
+                   help="the shipped models (models/) or the pretrained real-world ones "
+                        "(perception.pretrained; `signsplat models fetch`)")
     add_runtime_args(p)
     return p
 
@@ -57,12 +44,17 @@ def segment(argv: list[str]) -> int:
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, _ = specs(cfg, a.device)
+    seg, kp = detector_specs(cfg, a.detectors, a.device)
     threads = a.threads
     from signsplat.perception.stages import segment_sequence, timings_table
 
+    signer = None
+    if a.detectors == "pretrained":
+        from signsplat.perception.pretrained.select import SignerMasking, SignerRule
+
+        signer = SignerMasking(kp, SignerRule.from_config(cfg["signer"]), threads)
     report = segment_sequence(a.frames, a.out_dir, seg, threads, cfg["skip_bad_frames"],
-                              progress=not a.quiet)
+                              progress=not a.quiet, signer=signer)
     if a.timings:
         scene = str(report.table["scene"].iloc[0]) if len(report.table) else ""
         write_table(timings_table(report, scene, "segment"), a.timings, "timings")
@@ -76,16 +68,20 @@ def detect_keypoints(argv: list[str]) -> int:
     p = _parser("detect-keypoints", detect_keypoints.__doc__)
     p.add_argument("--frames", required=True, help="frames.parquet")
     p.add_argument("--masks", required=True, help="masks.parquet written by segment")
+    p.add_argument("--persons", default=None,
+                   help="persons.parquet written by segment: the pretrained keypointer takes "
+                        "the signer chosen there")
     p.add_argument("--out", required=True, help="keypoints.parquet to write")
     p.add_argument("--timings", default=None, help="write a timings table here")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    _, kp = specs(cfg, a.device)
+    _, kp = detector_specs(cfg, a.detectors, a.device)
     threads = a.threads
     from signsplat.perception.stages import detect_sequence, timings_table
 
     report = detect_sequence(a.frames, a.masks, a.out, kp, threads, cfg["skip_bad_frames"],
-                             progress=not a.quiet)
+                             progress=not a.quiet, min_area=cfg["keypoints"]["min_area"],
+                             persons_path=a.persons if a.detectors == "pretrained" else None)
     if a.timings:
         scene = str(report.table["scene"].iloc[0]) if len(report.table) else ""
         write_table(timings_table(report, scene, "detect_keypoints"), a.timings, "timings")
@@ -102,12 +98,34 @@ def perception_eval(argv: list[str]) -> int:
     p.add_argument("--timings", nargs="*", default=[], help="part=timings.parquet ...")
     a = p.parse_args(argv)
     cfg = perception_config(a.config_json)
-    seg, kp = specs(cfg, a.device)
+    seg, kp = detector_specs(cfg, a.detectors, a.device)
     from signsplat.perception.evaluate import evaluate_scene, format_table
 
     timing_paths = dict(t.split("=", 1) for t in a.timings)
     df = evaluate_scene(a.sim_dir, a.perception_dir, a.out, seg, kp,
                         a.threads, cfg["eval"]["speed_frames"], timing_paths)
+    print(format_table(df))
+    return 0
+
+
+def perception_quality(argv: list[str]) -> int:
+    """Detection rates and keypoint jitter of footage (no ground truth), and overlays."""
+    p = _parser("perception-quality", perception_quality.__doc__)
+    p.add_argument("--frames", required=True, help="frames.parquet")
+    p.add_argument("--masks", required=True, help="masks.parquet")
+    p.add_argument("--keypoints", required=True, help="keypoints.parquet")
+    p.add_argument("--out", required=True, help="quality.parquet to write")
+    p.add_argument("--overlays", default=None, help="folder for overlay PNGs")
+    a = p.parse_args(argv)
+    cfg = perception_config(a.config_json)["quality"]
+    from signsplat.perception.quality import footage_quality, write_overlays
+
+    df = footage_quality(a.frames, a.keypoints, a.out, cfg["min_score"])
+    if a.overlays:
+        write_overlays(a.frames, a.masks, a.keypoints, a.overlays, cfg["overlays"],
+                       cfg["min_score"])
+    from signsplat.perception.evaluate import format_table
+
     print(format_table(df))
     return 0
 

@@ -49,6 +49,9 @@ class SegmenterSpec:
     output_index: which output holds the alpha (N, 1, H, W).
     threshold: alpha above which a pixel is foreground.
     batch_size: images per call when the model's batch axis is symbolic.
+    reference_size: with ``input_size`` None, MODNet's sizing rule: a frame whose sides are
+    both larger (or both smaller) than this is scaled to this shorter side; sides are rounded
+    down to multiples of 32 (None = the frame's own size rounded to 32).
     device: 'auto' (CUDA when onnxruntime has it), 'cpu', or 'cuda[:N]' (the config's device).
     """
 
@@ -60,6 +63,7 @@ class SegmenterSpec:
     output_index: int = 0
     threshold: float = 0.5
     batch_size: int = 8
+    reference_size: int | None = None
     device: str = "auto"
 
 

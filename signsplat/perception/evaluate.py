@@ -24,14 +24,12 @@ import numpy as np
 import pandas as pd
 
 from signsplat.body.joints import KEYPOINT_PARTS, NUM_KEYPOINTS
-from signsplat.io.tables import read_table, write_table
-from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_keypointer,
-                                            load_segmenter)
 from signsplat.io.images import read_mask, read_rgb
-from signsplat.perception.keypoints import box_from_mask, detect_batch
+from signsplat.io.tables import read_table, write_table
+from signsplat.perception.contracts import KeypointSpec, SegmenterSpec, load_segmenter
+from signsplat.perception.keypoints import box_from_mask
 from signsplat.perception.segment import mask_stats, segment_batch
 from signsplat.perception.tables import EVAL_TABLE, MASKS_TABLE  # noqa: F401  (registers)
-
 
 PCK_ALPHA = 0.05
 
@@ -111,7 +109,10 @@ def speed(sim_dir: str | os.PathLike, seg: SegmenterSpec, kps: KeypointSpec, thr
     frames = read_table(sim_dir / "frames.parquet", "frames").head(max_frames)
     scene = str(frames["scene"].iloc[0])
     images = [read_rgb(sim_dir / p) for p in frames["image"]]
-    smodel, kmodel = load_segmenter(seg, threads), load_keypointer(kps, threads)
+    from signsplat.perception.stages import open_keypointer
+
+    smodel, kmodel = load_segmenter(seg, threads), open_keypointer(kps, threads)
+    views = frames["view"].astype(int).tolist()
     t_seg = t_kp = 0.0
     for _ in range(repeats):
         for start in range(0, len(images), seg.batch_size):
@@ -121,7 +122,7 @@ def speed(sim_dir: str | os.PathLike, seg: SegmenterSpec, kps: KeypointSpec, thr
             boxes = [None if np.isnan(st["box"][0]) else st["box"]
                      for st in (mask_stats(a, seg.threshold) for a in alphas)]
             t1 = time.perf_counter()
-            detect_batch(kmodel, kps, batch, boxes)
+            kmodel.detect(batch, boxes, views[start:start + seg.batch_size])
             t2 = time.perf_counter()
             t_seg += t1 - t0
             t_kp += t2 - t1
@@ -165,6 +166,7 @@ def evaluate_scene(sim_dir, perception_dir, out_path, seg: SegmenterSpec, kps: K
         parts.append(stage_speed(str(acc["scene"].iloc[0]), timing_paths))
     df = pd.concat(parts, ignore_index=True).astype({"value": "float64", "count": "int64"})
     write_table(df, out_path, "perception_eval",
-                metadata={"segmenter": str(seg.path), "keypoints": str(kps.path),
+                metadata={"segmenter": str(seg.path),
+                          "keypoints": str(getattr(kps, "path", getattr(kps, "cache", ""))),
                           "threads": str(threads)})
     return df

@@ -14,11 +14,27 @@ from signsplat.perception.contracts import LoadedModel, SegmenterSpec
 from signsplat.perception.keypoints import box_from_mask, normalise
 
 
-def _model_size(model: LoadedModel, image: np.ndarray) -> tuple[int, int]:
-    """(H, W) fed to the model: its configured/static size, else the frame rounded to 32."""
+def reference_size(h: int, w: int, ref: int) -> tuple[int, int]:
+    """(H, W) by MODNet's inference rule: when both sides are larger or both smaller than
+    ``ref``, scale so the shorter side is ``ref``; then round each side down to a multiple of
+    32 (at least 32)."""
+    rh, rw = h, w
+    if max(h, w) < ref or min(h, w) > ref:
+        if w >= h:
+            rh, rw = ref, int(w / h * ref)
+        else:
+            rh, rw = int(h / w * ref), ref
+    return max(32, rh - rh % 32), max(32, rw - rw % 32)
+
+
+def _model_size(model: LoadedModel, image: np.ndarray, ref: int | None = None) -> tuple[int, int]:
+    """(H, W) fed to the model: its configured/static size, else :func:`reference_size` with
+    ``ref``, else the frame rounded to 32."""
     if model.input_size is not None:
         return model.input_size
     h, w = image.shape[:2]
+    if ref:
+        return reference_size(h, w, ref)
     return (max(32, int(round(h / 32)) * 32), max(32, int(round(w / 32)) * 32))
 
 
@@ -37,7 +53,7 @@ def segment_batch(model: LoadedModel, spec: SegmenterSpec,
     out: list[np.ndarray | None] = [None] * len(images)
     groups: dict[tuple[int, int], list[int]] = {}
     for i, img in enumerate(images):
-        groups.setdefault(_model_size(model, img), []).append(i)
+        groups.setdefault(_model_size(model, img, spec.reference_size), []).append(i)
     for hw, idx in groups.items():
         batch = normalise(np.stack([resize(images[i], hw) for i in idx]), spec.mean, spec.std,
                           spec.color_order)

@@ -9,6 +9,7 @@ a warning is printed and the bad frames are left out of the tables).
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -27,7 +28,7 @@ from signsplat.perception.contracts import (KeypointSpec, SegmenterSpec, load_ke
 from signsplat.io.images import read_rgb, write_mask
 from signsplat.perception.keypoints import detect_batch
 from signsplat.perception.segment import mask_stats, segment_batch
-from signsplat.perception.tables import MASKS_TABLE  # noqa: F401  (registers 'masks')
+from signsplat.perception.tables import MASKS_TABLE, PERSONS_TABLE  # noqa: F401  (registers)
 
 
 
@@ -79,19 +80,27 @@ def timings_table(report: StageReport, scene: str, stage: str) -> pd.DataFrame:
 
 def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
                      spec: SegmenterSpec, threads: int = 1, skip_bad_frames: bool = False,
-                     progress: bool = True) -> StageReport:
+                     progress: bool = True, signer=None) -> StageReport:
     """Masks for every row of a ``frames`` table.
 
-    Writes ``out_dir/masks/{view:02d}/{frame:04d}.png`` (0/255) and ``out_dir/masks.parquet``
-    (table ``masks``). Returns the report (its table has one row per readable frame).
+    Writes ``out_dir/masks/{view:02d}/{frame:04d}.png`` (0/255), ``out_dir/masks.parquet``
+    (table ``masks``), ``out_dir/persons.parquet`` (table ``persons``) and
+    ``out_dir/masked_frames.parquet``: the input ``frames`` table with these masks in its
+    ``mask`` column (paths relative to ``out_dir``), for stages that train on masked frames of
+    footage, whose own frames table has no masks. ``signer``
+    (:class:`~signsplat.perception.pretrained.select.SignerMasking`) chooses the signer among
+    the people in each frame and restricts the mask to them; without it the persons table has
+    no rows. When no frame has a person at all, the outputs are written and an
+    :class:`~signsplat.errors.InputError` names the input and its frames. Returns the report
+    (its table has one row per readable frame).
     """
     t_start = time.perf_counter()
     frames_path, out_dir = Path(frames_path), Path(out_dir)
-    frames = read_table(frames_path, "frames").sort_values(["view", "frame"], kind="stable")
-    frames = frames.reset_index(drop=True)
+    source = read_table(frames_path, "frames")
+    frames = source.sort_values(["view", "frame"], kind="stable").reset_index(drop=True)
     model = load_segmenter(spec, threads)
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
-    rows, bad = [], []
+    rows, bad, people = [], [], []
     bar = tqdm(total=len(frames), desc="segment", unit="frame", disable=not progress,
                file=sys.stderr)
     for idx in _batches(len(frames), spec.batch_size):
@@ -103,8 +112,12 @@ def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
         t1 = time.perf_counter()
         alphas = segment_batch(model, spec, [images[i] for i in good]) if good else []
         t2 = time.perf_counter()
-        for i, alpha in zip(good, alphas):
+        for i, alpha in zip(good, alphas, strict=True):
             r = chunk.iloc[i]
+            if signer is not None:
+                alpha, found = signer(images[i], alpha, int(r["view"]))
+                people += [dict(scene=r["scene"], view=int(r["view"]), frame=int(r["frame"]),
+                                **p) for p in found]
             st = mask_stats(alpha, spec.threshold)
             rel = f"masks/{int(r['view']):02d}/{int(r['frame']):04d}.png"
             write_mask(out_dir / rel, st["mask"])
@@ -122,18 +135,85 @@ def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
                     "y0": "float32", "x1": "float32", "y1": "float32",
                     "confidence": "float32"})
     write_table(df, out_dir / "masks.parquet", "masks", metadata={"model": str(spec.path)})
+    write_table(persons_frame(people), out_dir / "persons.parquet", "persons",
+                metadata={"rule": json.dumps(signer.rule.__dict__) if signer else ""})
+    masked = frames.merge(df[["view", "frame", "mask"]], on=["view", "frame"],
+                          suffixes=("_input", ""))
+    masked["image"] = [os.path.relpath(frames_path.parent / p, out_dir) for p in masked["image"]]
+    write_table(masked[list(source.columns)], out_dir / "masked_frames.parquet", "frames",
+                metadata=source.attrs)
     t["total"] = time.perf_counter() - t_start
     report = StageReport(df, bad, t, len(df))
+    if len(df) and not (df["area"] > 0).any():
+        raise InputError(f"{frames_source(frames_path)}: no person found in any of its "
+                         f"{len(df)} frame(s) (frames {df['frame'].min()}-{df['frame'].max()};"
+                         f" masks in {out_dir})")
     return _finish(report, skip_bad_frames, "segment")
 
 
+def frames_source(frames_path: str | os.PathLike) -> str:
+    """What a frames table was made from, for messages: the camera files ingest recorded
+    (``cameras`` metadata), else the table itself."""
+    meta = read_table(frames_path, "frames").attrs
+    cams = meta.get("cameras")
+    return "; ".join(json.loads(cams)) if cams else str(frames_path)
+
+
+def persons_frame(rows: list[dict]) -> pd.DataFrame:
+    """The ``persons`` table from per-person dicts (scene, view, frame + PERSON_COLUMNS)."""
+    from signsplat.perception.pretrained.select import PERSON_COLUMNS
+
+    cols = ["scene", "view", "frame", *PERSON_COLUMNS]
+    df = pd.DataFrame(rows, columns=cols)
+    f32 = {c: "float32" for c in cols[5:-2]}
+    return df.astype({"view": "int32", "frame": "int32", "person": "int16", "score": "float32",
+                      **f32, "chosen": "bool", "chosen_by": "str"})
+
+
+class SimccKeypointer:
+    """A top-down SimCC model (RTMPose/RTMW contract): one batched call per chunk of frames."""
+
+    source = "onnx"
+
+    def __init__(self, spec: KeypointSpec, threads: int = 1):
+        self.spec = spec
+        self.model = load_keypointer(spec, threads)
+        self.path, self.batch_size, self.min_area = str(spec.path), spec.batch_size, spec.min_area
+        self.num_keypoints = spec.num_keypoints
+
+    def detect(self, images: list, boxes: list, views: list[int], persons=None):
+        """(N, 133, 2) pixels and (N, 133) scores for frames in time order per view (the
+        person box is the mask's; ``persons`` is not used)."""
+        return detect_batch(self.model, self.spec, images, boxes)
+
+
+def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
+    """The keypointer for ``spec``: a :class:`KeypointSpec` (SimCC ONNX model) or a
+    :class:`~signsplat.perception.pretrained.keypointer.MediaPipeSpec` (the pretrained
+    whole-body keypointer); ``min_area`` overrides the spec's (masks smaller = no person)."""
+    if isinstance(spec, KeypointSpec):
+        kp = SimccKeypointer(spec, threads)
+    else:
+        from signsplat.perception.pretrained.keypointer import MediaPipeKeypointer
+
+        kp = MediaPipeKeypointer(spec, threads)
+    if min_area is not None:
+        kp.min_area = int(min_area)
+    return kp
+
+
 def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLike,
-                    out_path: str | os.PathLike, spec: KeypointSpec, threads: int = 1,
-                    skip_bad_frames: bool = False, progress: bool = True) -> StageReport:
+                    out_path: str | os.PathLike, spec, threads: int = 1,
+                    skip_bad_frames: bool = False, progress: bool = True,
+                    min_area: int | None = None,
+                    persons_path: str | os.PathLike | None = None) -> StageReport:
     """COCO-WholeBody keypoints for every frame that has a row in the ``masks`` table.
 
-    The person box is the mask's box; a frame with an empty mask gets score 0 and NaN x, y.
-    Writes ``out_path`` (table ``keypoints``, one row per keypoint, scores in [0, 1]).
+    ``spec`` chooses the keypointer (:func:`open_keypointer`). A frame whose mask is empty
+    (fewer than ``min_area`` pixels) gets score 0 and NaN x, y; the SimCC models take the
+    mask's box as the person box, the pretrained keypointer the signer the segment stage
+    chose (``persons_path``, table ``persons``) when given. Writes ``out_path`` (table
+    ``keypoints``, one row per keypoint, scores in [0, 1]).
     """
     t_start = time.perf_counter()
     frames_path = Path(frames_path)
@@ -145,13 +225,19 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     bad = [f"{frames_path.parent / r['image']}: no row in {masks_path}"
            for _, r in frames[frames["_merge"] != "both"].iterrows()]
     frames = frames[frames["_merge"] == "both"].reset_index(drop=True)
-    model = load_keypointer(spec, threads)
-    k = spec.num_keypoints
+    kp = open_keypointer(spec, threads, min_area)
+    k = kp.num_keypoints
+    chosen = {}
+    if persons_path is not None:
+        ppl = read_table(persons_path, "persons")
+        for _, r in ppl[ppl["chosen"]].iterrows():
+            chosen[(int(r["view"]), int(r["frame"]))] = np.array(
+                [[r["hip_x"], r["hip_y"]], [r["scale_x"], r["scale_y"]]], np.float64)
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
     keys, xys, scs = [], [], []
     bar = tqdm(total=len(frames), desc="keypoints", unit="frame", disable=not progress,
                file=sys.stderr)
-    for idx in _batches(len(frames), spec.batch_size):
+    for idx in _batches(len(frames), kp.batch_size):
         chunk = frames.iloc[list(idx)]
         t0 = time.perf_counter()
         images, errs = _read_frames(chunk, frames_path.parent)
@@ -160,12 +246,15 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
         boxes = []
         for i in good:
             b = chunk.iloc[i][["x0", "y0", "x1", "y1"]].to_numpy(np.float64)
-            small = chunk.iloc[i]["area"] < spec.min_area
+            small = chunk.iloc[i]["area"] < kp.min_area
             boxes.append(None if small or not np.all(np.isfinite(b)) or b[2] <= b[0]
                          or b[3] <= b[1] else b)
         t1 = time.perf_counter()
         if good:
-            xy, sc = detect_batch(model, spec, [images[i] for i in good], boxes)
+            keys_good = [(int(chunk.iloc[i]["view"]), int(chunk.iloc[i]["frame"])) for i in good]
+            people = [chosen.get(key) for key in keys_good] if persons_path is not None else None
+            xy, sc = kp.detect([images[i] for i in good], boxes, [v for v, _ in keys_good],
+                               people)
             for j, i in enumerate(good):
                 r = chunk.iloc[i]
                 keys.append((r["scene"], int(r["view"]), int(r["frame"])))
@@ -177,7 +266,7 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     bar.close()
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
-    write_table(df, out_path, "keypoints", metadata={"model": str(spec.path), "source": "onnx"})
+    write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})
     t["write"] += time.perf_counter() - t0
     t["total"] = time.perf_counter() - t_start
     report = StageReport(df, bad, t, len(keys))

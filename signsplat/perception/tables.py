@@ -22,6 +22,31 @@ MASKS_TABLE = register_table(Table(
     metadata={"model": "path of the segmentation ONNX file"},
 ))
 
+PERSONS_TABLE = register_table(Table(
+    "persons",
+    "People the pretrained person detector found per frame, and which one was taken as the "
+    "signer (signsplat.perception.pretrained.select); no rows with the shipped detectors.",
+    {
+        "scene": "str sequence name",
+        "view": "int32 camera index",
+        "frame": "int32 frame index",
+        "person": "int16 detection index in the frame (best score first)",
+        "score": "float32 detector score in [0, 1]",
+        "hip_x": "float32 mid-hip point x in pixels (the body region's centre)",
+        "hip_y": "float32 mid-hip point y in pixels",
+        "scale_x": "float32 full-body size/rotation point x in pixels",
+        "scale_y": "float32 full-body size/rotation point y in pixels",
+        "head_x0": "float32 head box left edge in pixels",
+        "head_y0": "float32 head box top edge in pixels",
+        "head_x1": "float32 head box right edge in pixels",
+        "head_y1": "float32 head box bottom edge in pixels",
+        "chosen": "bool this person is the signer (the mask and keypoints are theirs)",
+        "chosen_by": "str how: 'tracked' (same head as the last frame's signer) or the rule "
+                     "(largest | central | box); empty when not chosen",
+    },
+    metadata={"rule": "the signer rule as JSON (rule, box, track_iou, margin)"},
+))
+
 EVAL_TABLE = register_table(Table(
     "perception_eval",
     "Perception accuracy and speed of one scene against ground truth (one row per metric).",

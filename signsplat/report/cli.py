@@ -34,8 +34,18 @@ def _html(argv: list[str]) -> int:
     p.add_argument("--title", default="SignSplat report")
     p.add_argument("--tables", default=None,
                    help="also write every table of the report as TSV files in this folder")
+    p.add_argument("--benchmarks-json", default=None,
+                   help='rule -> {"benchmark": pattern, "log": pattern} ({"segment": '
+                   '{"benchmark": "results/_benchmarks/{scene}/segment.tsv", "log": '
+                   '"results/_logs/{scene}/segment.log"}, ...}): names the rule of each job in '
+                   'the cost tables and finds its SLURM step')
+    p.add_argument("--fit-suite", default=None,
+                   help="the fit suite's table (benchmarks/fit_suite.py writes "
+                        "benchmarks/results/fit_suite.parquet): a section for it when it exists")
     a = p.parse_args(argv)
-    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables)
+    patterns = json.loads(a.benchmarks_json) if a.benchmarks_json else None
+    out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables, patterns,
+                       a.fit_suite)
     print(f"report: {Path(out).resolve()}")
     return 0
 
@@ -50,17 +60,26 @@ def _write(df, a, table: str) -> None:
     print(df.to_string(index=False))
 
 
+def _study_args(argv: list[str], name: str, json_arg: str, json_help: str,
+                plot: bool) -> argparse.Namespace:
+    """The arguments every study table command takes: --results, --scene, its JSON plan,
+    --out, --plot (when it draws one), --demo, --tsv."""
+    p = argparse.ArgumentParser(prog=f"signsplat report {name}")
+    p.add_argument("--results", required=True)
+    p.add_argument("--scene", required=True)
+    p.add_argument(json_arg, required=True, help=json_help)
+    p.add_argument("--out", required=True)
+    p.add_argument("--plot", required=plot, default=None)
+    p.add_argument("--demo", default="demo")
+    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
+    return p.parse_args(argv)
+
+
 def _ablations(argv: list[str]) -> int:
     from signsplat.report.runs import ablation_table, ssim_finding
 
-    p = argparse.ArgumentParser(prog="signsplat report ablations")
-    p.add_argument("--results", required=True)
-    p.add_argument("--scene", required=True)
-    p.add_argument("--variants-json", required=True,
-                   help='[{"label": ..., "iterations": ..., "variant": ..., switches}, ...]')
-    p.add_argument("--out", required=True)
-    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
-    a = p.parse_args(argv)
+    a = _study_args(argv, "ablations", "--variants-json",
+                    '[{"label": ..., "iterations": ..., "variant": ..., switches}, ...]', False)
     df = ablation_table(Path(a.results), a.scene, json.loads(a.variants_json))
     _write(df, a, "ablations")
     print(ssim_finding(df))
@@ -71,15 +90,8 @@ def _regularizer(argv: list[str]) -> int:
     from signsplat.report.plots import regularizer_tradeoff
     from signsplat.report.runs import regularizer_table
 
-    p = argparse.ArgumentParser(prog="signsplat report regularizer")
-    p.add_argument("--results", required=True)
-    p.add_argument("--scene", required=True)
-    p.add_argument("--variants-json", required=True,
-                   help='[{"scale": ..., "iterations": ..., "variant": ...}, ...]')
-    p.add_argument("--out", required=True)
-    p.add_argument("--plot", required=True)
-    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
-    a = p.parse_args(argv)
+    a = _study_args(argv, "regularizer", "--variants-json",
+                    '[{"scale": ..., "iterations": ..., "variant": ...}, ...]', True)
     df = regularizer_table(Path(a.results), a.scene, json.loads(a.variants_json))
     _write(df, a, "regularizer_sweep")
     regularizer_tradeoff(df, Path(a.plot), title=a.scene)
@@ -90,17 +102,9 @@ def _sweep(argv: list[str]) -> int:
     from signsplat.report.plots import accuracy_vs_time
     from signsplat.report.runs import sweep_table
 
-    p = argparse.ArgumentParser(prog="signsplat report sweep")
-    p.add_argument("--results", required=True)
-    p.add_argument("--scene", required=True)
-    p.add_argument("--settings-json", required=True,
-                   help='{"avatar variant": {"swept": "iterations", "iterations": 150, '
-                   '"resolution": 256, "max_points": 40000}, ...}')
-    p.add_argument("--out", required=True)
-    p.add_argument("--plot", required=True)
-    p.add_argument("--demo", default="demo")
-    p.add_argument("--tsv", default=None, help="the same table as TSV (snakemake --report)")
-    a = p.parse_args(argv)
+    a = _study_args(argv, "sweep", "--settings-json",
+                    '{"avatar variant": {"swept": "iterations", "iterations": 150, '
+                    '"resolution": 256, "max_points": 40000}, ...}', True)
     df = sweep_table(Path(a.results), a.scene, json.loads(a.settings_json))
     _write(df, a, "sweep")
     accuracy_vs_time(df, Path(a.plot), label="setting", highlight=a.demo, title=a.scene)

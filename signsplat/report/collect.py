@@ -50,6 +50,9 @@ class SceneTables:
     ablations: pd.DataFrame | None = None
     regularizer: pd.DataFrame | None = None
     sweep: pd.DataFrame | None = None
+    footage_quality: pd.DataFrame | None = None  # footage: detection rates, jitter
+    footage_overlays: list[Path] = field(default_factory=list)  # mask + keypoints on frames
+    persons: pd.DataFrame | None = None  # who the person detector saw, who was taken
 
 
 @dataclass
@@ -122,10 +125,31 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
         if kp.is_file():
             t.keypoints_2d = kp
             break
+    t.footage_quality = read_parquet(perc / "quality.parquet")
+    t.footage_overlays = _pngs(perc / "overlays", max_images)
+    t.persons = read_parquet(perc / "persons.parquet")
     t.ablations = read_parquet(scene_dir / "ablations.parquet")
     t.regularizer = read_parquet(scene_dir / "regularizer.parquet")
     t.sweep = read_parquet(scene_dir / "sweep.parquet")
     return t
+
+
+def benchmark_files(bench_dir: str | Path):
+    """Each readable Snakemake benchmark TSV below ``bench_dir`` (sorted) with the means over
+    its repeats: yields ``(path, {"seconds", "cpu_seconds", "max_rss_mb"})`` (NaN for a column
+    the file lacks); empty, unreadable or foreign TSV files are passed over."""
+    bench_dir = Path(bench_dir)
+    for f in sorted(bench_dir.rglob("*.tsv")) if bench_dir.is_dir() else []:
+        try:
+            df = pd.read_csv(f, sep="\t")
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
+            continue
+        if "s" not in df.columns or not len(df):
+            continue
+        yield f, {name: float(pd.to_numeric(df[col], errors="coerce").mean())
+                  if col in df.columns else float("nan")
+                  for name, col in (("seconds", "s"), ("cpu_seconds", "cpu_time"),
+                                    ("max_rss_mb", "max_rss"))}
 
 
 def read_benchmarks(bench_dir: Path) -> pd.DataFrame:
@@ -136,24 +160,10 @@ def read_benchmarks(bench_dir: Path) -> pd.DataFrame:
     variant suffix is not recoverable in general, so ``rule`` is the stem itself.
     """
     rows = []
-    for f in sorted(bench_dir.rglob("*.tsv")) if bench_dir.is_dir() else []:
-        try:
-            df = pd.read_csv(f, sep="\t")
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
-            continue
-        if "s" not in df.columns or not len(df):
-            continue
+    for f, means in benchmark_files(bench_dir):
         rel = f.relative_to(bench_dir)
         scene = rel.parts[0] if len(rel.parts) > 1 else ""
-        rows.append({
-            "job": f.stem, "scene": scene,
-            "seconds": float(pd.to_numeric(df["s"], errors="coerce").mean()),
-            "cpu_seconds": float(pd.to_numeric(df.get("cpu_time", pd.Series([float("nan")])),
-                                               errors="coerce").mean()),
-            "max_rss_mb": float(pd.to_numeric(df.get("max_rss", pd.Series([float("nan")])),
-                                              errors="coerce").mean()),
-            "file": str(f),
-        })
+        rows.append({"job": f.stem, "scene": scene, **means, "file": str(f)})
     return pd.DataFrame(rows, columns=["job", "scene", "seconds", "cpu_seconds", "max_rss_mb",
                                        "file"])
 

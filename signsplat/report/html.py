@@ -23,8 +23,9 @@ from signsplat.avatar.views import WEAK_VIEW_DB, weak_views
 from signsplat.body import joints as J
 from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb, write_png
-from signsplat.report import plots, runs
+from signsplat.report import accounting, plots, runs
 from signsplat.report.collect import Results, bench_seconds, collect
+from signsplat.report.fit_suite import fit_suite_section
 
 
 @dataclass
@@ -137,6 +138,66 @@ def perception_section(res: Results) -> Section:
             sec.add_table(f"{name}: timings", t.perception_timings)
     if not sec.tables:
         sec.missing = "no perception/eval.parquet found (perception stages did not run)"
+    return sec
+
+
+def _footage_summary(t) -> pd.DataFrame:
+    """One row per footage measure: detection rates and jitter (perception), who was taken
+    (persons), the fit's reprojection error and the avatar's held-out scores, at 256 px."""
+    q = t.footage_quality
+    rows = [(f"{r.metric} ({r.part})", r.value, int(r.count)) for r in q.itertuples()]
+    height = read_rgb(t.footage_overlays[0]).shape[0] if t.footage_overlays else None
+    if t.persons is not None and len(t.persons):
+        p = t.persons
+        per_frame = p.groupby(["view", "frame"]).size()
+        rows.append(("people per frame (mean)", float(per_frame.mean()), len(per_frame)))
+        for how, n in p[p["chosen"]]["chosen_by"].value_counts().items():
+            rows.append((f"signer taken by: {how}", float(n), int(n)))
+    if t.fit_eval is not None and height:
+        fe = t.fit_eval[t.fit_eval["metric"] == "reprojection"]
+        for r in fe.itertuples():
+            rows.append((f"fit reprojection error ({r.part}), px at 256 px height",
+                         float(r.value) * 256.0 / height, 0))
+    for variant, m in t.avatar_metrics.items():
+        sel = m[(m["split"] == "novel_pose") & (m["part"] == "full")]
+        if "protocol" in sel:
+            sel = sel[sel["protocol"] == "mask_only"]
+        if "refine" in sel:
+            sel = sel[~sel["refine"].astype(bool)]
+        for r in sel.itertuples():
+            rows.append((f"avatar {variant}: held-out {r.metric} (masked)", float(r.value),
+                         int(getattr(r, "n_images", 0) or 0)))
+        if len(sel):
+            rows.append((f"avatar {variant}: training seconds", float(sel["train_seconds"].iloc[0]),
+                         0))
+    return pd.DataFrame(rows, columns=["measure", "value", "count"])
+
+
+def footage_section(res: Results, assets: Assets) -> Section:
+    """Footage sequences (those with perception/quality.parquet); the report has this section
+    only when a run holds footage."""
+    sec = Section("footage", "2b. Real footage (no ground truth)",
+                  "What can be measured without ground truth (signsplat.perception.quality): "
+                  "the share of frames in which each part is found (a hand: among the frames "
+                  "in which the pose shows it in view), keypoint jitter (median second "
+                  "difference, px at a 256-pixel frame height), who the person detector saw "
+                  "and how the signer was taken, the fit's reprojection error and the "
+                  "avatar's held-out scores (every 10th frame, masked by the perception "
+                  "masks). Overlays: the person mask (green) and the keypoints (body red, face "
+                  "yellow, left hand blue, right hand magenta); the fit's overlays are in "
+                  "section 3.")
+    for name, t in res.scenes.items():
+        if t.footage_quality is None:
+            continue
+        sec.add_table(f"{name}: footage measures", _footage_summary(t))
+        secs = bench_seconds(res.benchmarks, "perception_quality", name)
+        seg = bench_seconds(res.benchmarks, "segment", name)
+        kps = bench_seconds(res.benchmarks, "detect_keypoints", name)
+        total = sum(s for s in (secs, seg, kps) if s is not None) or None
+        for img in t.footage_overlays:
+            sec.figures.append(Figure(assets.copy(img), f"{name}: frame {img.stem}", total,
+                                      "segment + detect_keypoints + perception_quality "
+                                      "(whole sequence)"))
     return sec
 
 
@@ -453,9 +514,11 @@ def stitch_section(res: Results, assets: Assets) -> Section:
     return sec
 
 
-def runtime_section(res: Results, assets: Assets) -> Section:
+def runtime_section(res: Results, assets: Assets,
+                    benchmark_patterns: dict | None = None) -> Section:
     sec = Section("runtimes", "9. Run time per rule",
-                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory).")
+                  "Snakemake `benchmark:` files (wall-clock and CPU seconds, peak memory); for a "
+                  "run on SLURM, the scheduler's own figures (sacct) beside them.")
     b = res.benchmarks
     if not len(b):
         sec.missing = "no benchmark files in results/_benchmarks"
@@ -465,6 +528,8 @@ def runtime_section(res: Results, assets: Assets) -> Section:
                               float(b["seconds"].sum()), "sum over all jobs"))
     sec.add_table("Jobs", b.drop(columns=["file"]).sort_values(
         "seconds", ascending=False))
+    for caption, df in accounting.cost_tables(res.root, benchmark_patterns):
+        sec.add_table(caption, df)
     return sec
 
 
@@ -506,12 +571,24 @@ nav a{margin-right:1em}
 """)
 
 
-def build_sections(res: Results, report_dir: Path, demo: str = "demo") -> list[Section]:
+def build_sections(res: Results, report_dir: Path, demo: str = "demo",
+                   benchmark_patterns: dict | None = None,
+                   fit_suite: str | Path | None = None) -> list[Section]:
+    """The report's sections; with ``fit_suite`` (a ``fit_suite`` table that exists, written
+    by benchmarks/fit_suite.py) also the suite's section, its figure taken from beside it."""
     assets = Assets(report_dir)
-    return [scene_section(res, assets), perception_section(res), fit_section(res, assets),
-            colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
-            sweep_section(res, assets, demo), stitch_section(res, assets),
-            runtime_section(res, assets)]
+    footage = [footage_section(res, assets)] if any(
+        t.footage_quality is not None for t in res.scenes.values()) else []
+    sections = [scene_section(res, assets), perception_section(res), *footage,
+                fit_section(res, assets),
+                colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
+                sweep_section(res, assets, demo), stitch_section(res, assets),
+                runtime_section(res, assets, benchmark_patterns)]
+    if fit_suite is not None:
+        suite = fit_suite_section(fit_suite, assets, Path(fit_suite).with_suffix(".svg"))
+        if suite is not None:
+            sections.append(suite)
+    return sections
 
 
 def write_tables(sections: list[Section], folder: Path) -> list[Path]:
@@ -535,12 +612,17 @@ def write_tables(sections: list[Section], folder: Path) -> list[Path]:
 
 def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path | None = None,
                  demo: str = "demo", title: str = "SignSplat report",
-                 tables_dir: str | Path | None = None) -> Path:
+                 tables_dir: str | Path | None = None,
+                 benchmark_patterns: dict | None = None,
+                 fit_suite: str | Path | None = None) -> Path:
     """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
-    ``tables_dir``, every table also as a TSV file there."""
+    ``tables_dir``, every table also as a TSV file there. ``benchmark_patterns`` (rule ->
+    its benchmark and log file patterns) names each job's rule in the cost tables; with
+    ``fit_suite`` (the suite benchmark's table, when it exists) a section for the fit's
+    generalisation suite."""
     out = Path(out)
     res = collect(results, repo_scenes)
-    sections = build_sections(res, out.parent, demo)
+    sections = build_sections(res, out.parent, demo, benchmark_patterns, fit_suite)
     if tables_dir is not None:
         write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),

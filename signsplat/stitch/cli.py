@@ -146,8 +146,6 @@ class _VideoStage:
     """Renderer, camera and baseline tools loaded once for all sentences of a run."""
 
     def __init__(self, args, cfg: dict):
-        import torch
-
         from signsplat.body.keypoints import WholeBodyRegressor
         from signsplat.body.model import BodyModel
         from signsplat.device import use_runtime
@@ -174,10 +172,16 @@ class _VideoStage:
         self.cfg = cfg
         self.baseline = not args.no_baseline
         self.batch = int(cfg["render_batch"])
-        torch.set_grad_enabled(False)
 
     def run(self, clips, config, rate, out: Path, name: str, sentence: str):
-        """Render one sentence's videos; returns its ``stitch_eval`` rows."""
+        """Render one sentence's videos; returns its ``stitch_eval`` rows (no autograd inside;
+        the caller's grad mode is left as it was)."""
+        import torch
+
+        with torch.no_grad():
+            return self._run(clips, config, rate, out, name, sentence)
+
+    def _run(self, clips, config, rate, out: Path, name: str, sentence: str):
         from signsplat.io.video import VideoWriter
         from signsplat.motion.stitching import stitch_clips, stitch_frames
         from signsplat.stitch.animate import render_track

@@ -67,6 +67,57 @@ def gloss_library(argv: list[str]) -> int:
     return 0
 
 
+def sheet(argv: list[str]) -> int:
+    """``signsplat sheet synth --signers N --sentences M --out DIR [...]``: a sequence sheet of
+    N x M synthetic sequences (signsplat.synth.sheet)."""
+    parser = argparse.ArgumentParser(
+        prog="signsplat sheet synth",
+        description="Write DIR/sequences.tsv and DIR/scenes/*.yaml: N signers (body shape, "
+                    "appearance) x M sentences (gloss sequences), camera counts from --cameras; "
+                    "run it with `snakemake --config sequences=DIR/sequences.tsv scenes=[]`.")
+    parser.add_argument("kind", choices=["synth"], help="the kind of sheet (synthetic)")
+    parser.add_argument("--signers", type=int, required=True)
+    parser.add_argument("--sentences", type=int, required=True)
+    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument("--base", default="config/scenes/tiny.yaml",
+                        help="scene YAML whose other settings every sequence takes")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--glosses", type=int, nargs=2, default=[1, 3], metavar=("MIN", "MAX"),
+                        help="glosses per sentence")
+    parser.add_argument("--cameras", type=int, nargs=2, default=[1, 6], metavar=("MIN", "MAX"),
+                        help="cameras per sequence")
+    parser.add_argument("--betas-sigma", type=float, default=1.0,
+                        help="standard deviation of the body-shape coefficients")
+    parser.add_argument("--num-betas", type=int, default=10)
+    parser.add_argument("--frames", type=int, default=None,
+                        help="max_frames of every sequence (default: the base scene's)")
+    parser.add_argument("--size", type=int, default=None,
+                        help="image width and height (default: the base scene's)")
+    args = parser.parse_args(argv)
+
+    import yaml
+
+    from signsplat.synth.sheet import synth_sequences, write_sheet
+
+    try:
+        base = yaml.safe_load(open(args.base, encoding="utf-8")) or {}
+    except OSError as exc:
+        raise InputError(f"--base {args.base}: {exc.strerror}") from None
+    if args.frames is not None:
+        base["max_frames"] = args.frames
+    if args.size is not None:
+        base["cameras"] = {**base.get("cameras", {}), "width": args.size,
+                           "height_px": args.size}
+    specs = synth_sequences(args.signers, args.sentences, base, seed=args.seed,
+                            glosses=tuple(args.glosses), cameras=tuple(args.cameras),
+                            betas_sigma=args.betas_sigma, num_betas=args.num_betas)
+    path = write_sheet(specs, args.out)
+    counts = sorted({s["cameras"]["count"] for s in specs.values()})
+    print(f"wrote {path}: {len(specs)} sequences ({args.signers} signers x {args.sentences} "
+          f"sentences), camera counts {counts}")
+    return 0
+
+
 def simulate_training_set(argv: list[str]) -> int:
     """``signsplat simulate-training-set --count N --seed S --body NPZ --glosses PARQUET
     --out-dir DIR``: the detector training scenes, one ``DIR/<name>/sim`` folder each."""

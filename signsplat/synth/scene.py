@@ -74,25 +74,34 @@ def camera_rig(cameras: Mapping[str, Any]) -> list[Camera]:
 
     ``arc``: ``count`` cameras evenly over ``arc_degrees`` centred on the signer's front (+z);
     ``ring``: evenly over 360 degrees starting at the front. ``distance`` is measured in the
-    horizontal plane from ``target``; camera centres are at y = ``height``.
+    horizontal plane from ``target``; camera centres are at y = ``height``. With ``views`` the
+    cameras are placed one by one (azimuth, and optionally their own distance, height, point
+    looked at and field of view); ``count`` must equal their number.
     """
     n = int(cameras["count"])
-    if cameras["layout"] == "ring":
-        angles = np.arange(n) * (2 * np.pi / n)
+    target = scene_target(cameras)
+    views = cameras.get("views")
+    if views:
+        if len(views) != n:
+            raise SceneError(f"cameras.count is {n} but cameras.views places {len(views)} "
+                             "cameras; make them equal")
+        placed = [(np.deg2rad(float(v["azimuth_degrees"])), v) for v in views]
+    elif cameras["layout"] == "ring":
+        placed = [(a, {}) for a in np.arange(n) * (2 * np.pi / n)]
     else:
         half = np.deg2rad(float(cameras["arc_degrees"])) / 2
-        angles = np.linspace(-half, half, n) if n > 1 else np.zeros(1)
-    target = scene_target(cameras)
-    d = float(cameras["distance"])
+        placed = [(a, {}) for a in (np.linspace(-half, half, n) if n > 1 else np.zeros(1))]
     W, H = int(cameras["width"]), int(cameras["height_px"])
-    f = 0.5 * H / np.tan(np.deg2rad(float(cameras["fov_degrees"])) / 2)
-    K = np.array([[f, 0.0, (W - 1) / 2], [0.0, f, (H - 1) / 2], [0.0, 0.0, 1.0]])
     rig = []
-    for a in angles:
-        eye = np.array([target[0] + d * np.sin(a), float(cameras["height"]),
+    for a, own in placed:
+        d = float(own.get("distance", cameras["distance"]))
+        fov = float(own.get("fov_degrees", cameras["fov_degrees"]))
+        f = 0.5 * H / np.tan(np.deg2rad(fov) / 2)
+        K = np.array([[f, 0.0, (W - 1) / 2], [0.0, f, (H - 1) / 2], [0.0, 0.0, 1.0]])
+        eye = np.array([target[0] + d * np.sin(a), float(own.get("height", cameras["height"])),
                         target[2] + d * np.cos(a)])
-        R, t = look_at(eye, target)
-        rig.append(Camera(K.copy(), R, t, W, H))
+        R, t = look_at(eye, np.asarray(own.get("target", target), np.float64))
+        rig.append(Camera(K, R, t, W, H))
     return rig
 
 
@@ -249,13 +258,18 @@ def scene_name(scene: Mapping[str, Any], out_dir: str | os.PathLike) -> str:
 
 
 def check_scene(scene: Mapping[str, Any], source: str = "<scene>") -> None:
-    """Checks beyond the schema that need no data files: effect names and options.
+    """Checks beyond the schema that need no data files: effect names and options, and that
+    ``cameras.views`` places ``cameras.count`` cameras.
 
     Raises :class:`SceneError` naming ``source`` and the problem (cheap: builds nothing but
     the listed effects' option dicts).
     """
     from signsplat.synth.effects import EffectError, build_effects
 
+    cams = scene.get("cameras", {})
+    if cams.get("views") and len(cams["views"]) != cams.get("count"):
+        raise SceneError(f"{source}: cameras.count is {cams.get('count')} but cameras.views "
+                         f"places {len(cams['views'])} cameras; make them equal")
     try:
         build_effects(scene.get("effects", []), int(scene.get("seed", 0)))
     except EffectError as exc:

@@ -1,77 +1,33 @@
-"""Shared assets of the fit tests: the keypoint model of the proxy body (tests/conftest.py)
-and synthetic observations projected from known SMPL-X parameters and cameras."""
+"""Fixtures of the fit tests: the keypoint model of the proxy body (tests/conftest.py) and the
+same numerics for every test (helpers: fit_scenes.py)."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
-from signsplat.body import hand_limits as hl
-from signsplat.fit.cameras import Rig, intrinsics_from_fov, project, rig_prior
+
+@pytest.fixture(autouse=True)
+def _same_numerics_whatever_ran_before():
+    """Every fit test on one torch thread with torch's deterministic kernels (what run_fit
+    asks for), restored afterwards. Both are process-wide: other tests in the same pytest-xdist
+    worker (a CLI run with --threads 2, a fit through run_fit) changed them for the tests that
+    came after, so a fit's last digits, and a bound near its figure, depended on the order
+    the worker happened to run the tests in."""
+    from signsplat.device import make_deterministic
+
+    threads = torch.get_num_threads()
+    deterministic = torch.are_deterministic_algorithms_enabled()
+    warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.set_num_threads(1)
+    make_deterministic()
+    yield
+    torch.set_num_threads(threads)
+    torch.use_deterministic_algorithms(deterministic, warn_only=warn_only)
 
 
 @pytest.fixture(scope="session")
 def kpm(proxy_body_path):
     from signsplat.fit.bodyfit import load_keypoint_model
 
-    torch.set_num_threads(1)  # shared CPUs: oversubscribed OpenMP threads are very slow
     return load_keypoint_model(proxy_body_path, 10, 10, "cpu")
-
-
-def random_motion(T: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """A smooth signing-like motion: arms raised in front, fingers within their limits."""
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 1, T)[:, None]
-    body = np.zeros((T, 63))
-    # shoulders (joints 16, 17 -> body_pose index j-1), elbows (18, 19)
-    for j, base in ((16, [0.0, 0.0, -1.1]), (17, [0.0, 0.0, 1.1]),
-                    (18, [0.0, -1.2, 0.0]), (19, [0.0, 1.2, 0.0])):
-        body[:, 3 * (j - 1):3 * j] = np.asarray(base) + 0.25 * np.sin(
-            2 * np.pi * (t + rng.uniform()) * rng.uniform(0.5, 1.5, 3))
-    body[:, 3 * 8:3 * 9] = 0.05 * np.sin(2 * np.pi * t)  # spine3 sway
-    hands = {}
-    for side in ("left", "right"):
-        lim = hl.hand_limits(side)
-        free = rng.normal(0, 1.0, (1, lim.num_free)) + 0.5 * np.sin(2 * np.pi * t * 1.3)
-        hands[side] = hl.free_to_hand_pose(torch.as_tensor(free), lim).numpy()
-    return {
-        "betas": np.repeat(rng.normal(0, 0.5, (1, 10)), T, 0),
-        "expression": 0.3 * np.sin(2 * np.pi * t + np.arange(10)),
-        "global_orient": np.concatenate([0.05 * np.sin(2 * np.pi * t), 0.1 * t,
-                                         np.zeros_like(t)], 1),
-        "body_pose": body,
-        "jaw_pose": np.concatenate([0.1 + 0.1 * np.sin(2 * np.pi * t), 0 * t, 0 * t], 1),
-        "leye_pose": np.zeros((T, 3)), "reye_pose": np.zeros((T, 3)),
-        "left_hand_pose": hands["left"], "right_hand_pose": hands["right"],
-        "transl": np.concatenate([0.02 * t, 0.01 * np.sin(2 * np.pi * t), 0 * t], 1),
-    }
-
-
-def make_stage(**settings):
-    """A :class:`~signsplat.fit.solver.Stage` from settings, the schema filling the rest."""
-    from signsplat.fit.solver import Stage, stage_config
-
-    if "groups" in settings:
-        settings["groups"] = list(settings["groups"])
-    return Stage.from_config(stage_config(**settings))
-
-
-def synthetic_rig(views: int, arc: float = 150.0, size: int = 256) -> Rig:
-    K = intrinsics_from_fov(size, size, 36.0)
-    return rig_prior(np.tile(K, (views, 1, 1)), [size] * views, [size] * views, views, arc, 2.0,
-                     np.array([0.0, 1.2, 0.0]))
-
-
-def observe(kpm, params: dict[str, np.ndarray], rig: Rig, noise_px: float = 0.0, seed: int = 0
-            ) -> np.ndarray:
-    """Project the keypoints of ``params`` into ``rig``: obs (V,T,133,3), score 1 inside the
-    image (0 outside)."""
-    from signsplat.fit.bodyfit import keypoints_of
-
-    _, kp, _ = keypoints_of(kpm, params)
-    uv, z = project(torch.as_tensor(kp), *(torch.as_tensor(a) for a in (rig.K, rig.R, rig.t)))
-    uv = uv.numpy() + np.random.default_rng(seed).normal(0, noise_px, uv.shape)
-    inside = (uv[..., 0] >= 0) & (uv[..., 0] < rig.width[:, None, None]) & \
-        (uv[..., 1] >= 0) & (uv[..., 1] < rig.height[:, None, None]) & (z.numpy() > 0)
-    return np.concatenate([uv, inside[..., None].astype(float)], -1)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import make_stage, observe, random_motion, synthetic_rig
+from fit_scenes import make_stage, observe, random_motion, synthetic_rig
 from scipy.interpolate import griddata
 
 from signsplat.config import validate

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from conftest import make_stage, observe, random_motion, synthetic_rig
+from fit_scenes import make_stage, observe, random_motion, synthetic_rig
 
 from signsplat.config import validate
 from signsplat.errors import InputError

@@ -78,3 +78,65 @@ def test_corrupt_and_missing_videos_name_the_file(tmp_path):
     with pytest.raises(InputError, match=r"calib.yaml: views\[0\] lacks key"):
         extract_sequence("s", [_video(tmp_path / "ok.mp4", 2)], tmp_path / "o2",
                          calibration=bad_calib)
+
+
+def _faststart_video(path, n, size=(64, 48)):
+    """A video with its index first (as streamed files are), so a cut file opens and fails
+    where its data ends."""
+    import av
+
+    w, h = size
+    with av.open(str(path), "w", options={"movflags": "faststart"}) as c:
+        s = c.add_stream("libx264", rate=25)
+        s.width, s.height, s.pix_fmt = w, h, "yuv420p"
+        rng = np.random.default_rng(0)
+        for _ in range(n):
+            frame = av.VideoFrame.from_ndarray(rng.integers(0, 255, (h, w, 3), np.uint8),
+                                               format="rgb24")
+            for p in s.encode(frame):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    return path
+
+
+def test_cut_video_names_the_file_and_the_frame(tmp_path):
+    full = _faststart_video(tmp_path / "full.mp4", 40)
+    cut = tmp_path / "cut.mp4"
+    data = full.read_bytes()
+    cut.write_bytes(data[:len(data) // 2])
+    with pytest.raises(InputError, match=r"cut\.mp4: corrupt video, decoding failed at frame "
+                                         r"(\d+)") as err:
+        extract_sequence("s", [cut], tmp_path / "out")
+    assert 0 < int(err.value.args[0].split("at frame ")[1].split()[0]) < 40
+    assert not (tmp_path / "out" / "frames.parquet").exists()
+
+
+def test_crop_box_applies_before_resize_and_is_recorded(tmp_path):
+    import json
+
+    path = _video(tmp_path / "a.mp4", 3, size=(64, 48))
+    out = tmp_path / "out"
+    extract_sequence("s", [path], out, crop=(10, 4, 32, 40), size=(16, 20))
+    table = read_table(out / "frames.parquet", "frames")
+    assert read_rgb(out / table["image"].iloc[0]).shape == (20, 16, 3)
+    assert json.loads(table.attrs["cameras"]) == [str(path)]
+    frame = next(iter_frames(path, crop=(10, 4, 32, 40)))[1]
+    whole = next(iter_frames(path))[1]
+    np.testing.assert_array_equal(frame, whole[4:44, 10:42])
+    with pytest.raises(InputError, match=r"a\.mp4: frame 0: crop box x,y,w,h = 40,0,32,48 does "
+                                         r"not fit the 64x48 frame"):
+        extract_sequence("s", [path], tmp_path / "o2", crop=(40, 0, 32, 48))
+
+
+def test_sheet_row_crop_reaches_ingest(tmp_path):
+    import json
+
+    from signsplat.cli import main
+
+    path = _video(tmp_path / "a.mp4", 2, size=(64, 48))
+    row = {"sequence": "s", "cameras": str(path), "crop": "8,8,32,24", "resize": None}
+    assert main(["extract-frames", "--sequence-json", json.dumps(row), "--out",
+                 str(tmp_path / "out")]) == 0
+    table = read_table(tmp_path / "out" / "frames.parquet", "frames")
+    assert read_rgb(tmp_path / "out" / table["image"].iloc[0]).shape == (24, 32, 3)

@@ -238,3 +238,42 @@ def test_report_shows_psnr_per_camera_and_names_a_camera_far_below_the_others(re
     assert "view 2 on novel_pose (6.2 dB below)" in page
     for c in range(4):
         assert f"view {c}</th>" in page
+
+
+def test_footage_section_shows_rates_reprojection_and_heldout_scores(tmp_path):
+    from signsplat.io.images import write_png
+    from signsplat.io.tables import write_table
+    from signsplat.perception.quality import QUALITY_TABLE  # noqa: F401  (registers)
+    from signsplat.perception.stages import persons_frame
+
+    root = build_results(tmp_path / "r", scene="clip")
+    perc = root / "clip" / "perception"
+    q = pd.DataFrame([("clip", "detection_rate", "body", 0.97, 40),
+                      ("clip", "detection_rate", "right_hand", 0.85, 20),
+                      ("clip", "jitter_px", "face", 0.45, 300)],
+                     columns=["scene", "metric", "part", "value", "count"])
+    write_table(q.astype({"count": "int64"}), perc / "quality.parquet", "footage_quality")
+    write_png(perc / "overlays" / "0000.png", np.zeros((64, 96, 3), np.uint8))  # 64 px high
+    people = [dict(scene="clip", view=0, frame=f, person=j, score=0.9, hip_x=10.0 + 50 * j,
+                   hip_y=40.0, scale_x=10.0, scale_y=10.0, head_x0=0.0, head_y0=0.0,
+                   head_x1=5.0, head_y1=5.0, chosen=j == 0,
+                   chosen_by=("box" if f == 0 else "tracked") if j == 0 else "")
+              for f in range(3) for j in range(2)]
+    write_table(persons_frame(people), perc / "persons.parquet", "persons")
+    m = pd.read_parquet(root / "clip" / "eval" / "demo" / "metrics.parquet")
+    masked = m[m["protocol"] == "bg_replaced"].assign(protocol="mask_only")
+    masked["value"] = masked["value"] - 3.0
+    write_table(pd.concat([m, masked], ignore_index=True),
+                root / "clip" / "eval" / "demo" / "metrics.parquet", "avatar_metrics")
+    page = write_report(root, tmp_path / "rep" / "index.html").read_text()
+    assert 'id="footage"' in page
+    section = page.split('id="footage"')[1].split("<section")[0]
+    rows = dict(re.findall(r"<td>([^<]+)</td>\s*<td>([^<]+)</td>", section))
+    assert float(rows["detection_rate (body)"]) == 0.97
+    assert float(rows["people per frame (mean)"]) == 2.0
+    assert float(rows["signer taken by: tracked"]) == 2.0
+    # the fit's 2.1 px reprojection at a 64-pixel frame height is 8.4 px at 256
+    assert float(rows["fit reprojection error (all), px at 256 px height"]) == pytest.approx(8.4)
+    assert float(rows["avatar demo: held-out psnr (masked)"]) == 21.0  # 24 dB minus 3
+    assert float(rows["avatar demo: training seconds"]) == 895.0
+    assert re.search(r'class="secs">[0-9.]+ s<', section)

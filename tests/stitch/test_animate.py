@@ -175,9 +175,14 @@ def _sign(tmp_path, tiny_files, gloss_library, sentences, *extra, ids=None):
 def test_sign_command_renders_videos_and_eval(tmp_path, tiny_files, gloss_library, capsys):
     from signsplat.io.tables import read_table
 
+    import torch
+
     rc = _sign(tmp_path, tiny_files, gloss_library, ["Where is the book?", "Qwx!"],
                ids=["book", "qwx"])
     assert rc == 0, capsys.readouterr().err
+    # rendering ran without autograd, and left the process's grad mode as it found it (a
+    # command run in-process, as here, must not switch autograd off for what runs next)
+    assert torch.is_grad_enabled()
     out = tmp_path / "out"
     for name in ("book", "qwx"):
         track = read_table(out / f"{name}.smplx.parquet", "smplx_params")

@@ -7,6 +7,8 @@ from signsplat.plan import DEFAULT_VARIANTS
 
 def avatar_inputs(wildcards):
     files = {"frames": frames_table(wildcards), "body": rules.body_model.output[0]}
+    if wildcards.scene in VIDEOS:  # footage: the perception stage's masks
+        files["frames"] = f"{RESULTS}/{wildcards.scene}/perception/masked_frames.parquet"
     if PLAN.smplx_source(wildcards.variant, wildcards.scene) == "fitted":
         files["smplx"] = f"{RESULTS}/{wildcards.scene}/fit/smplx_fit.parquet"
         files["cameras"] = f"{RESULTS}/{wildcards.scene}/fit/cameras_fit.parquet"

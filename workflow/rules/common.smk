@@ -34,6 +34,7 @@ def final_outputs(report=True):
     out += expand(rules.extract_frames.output.frames, scene=list(VIDEOS))
     out += expand(rules.detect_keypoints.output.keypoints, scene=seqs)
     out += expand(rules.perception_eval.output[0], scene=list(SCENES))
+    out += expand(rules.perception_quality.output.table, scene=list(VIDEOS))
     out += expand(rules.fit_smplx.output.eval, scene=seqs)
     out += expand(rules.colmap_compare.output.table, scene=PLAN.multiview_scenes)
     out += expand(AVATAR_EVAL_FILES, scene=seqs, variant=DEFAULT_VARIANTS)

@@ -1,5 +1,16 @@
-# Stage 1 for real footage: frames of one video (or image folder) per camera.
+# Stage 1 for real footage: frames of one video (or image folder) per camera. A camera input
+# that is a fetched asset (the example clip in perception.pretrained.cache) is made by
+# perception.smk's fetch_assets rule first (ASSET_FILES is defined there; read at DAG time).
+
+
+def camera_inputs(wildcards):
+    cams = [c.strip() for c in VIDEOS[wildcards.scene]["cameras"].split(";") if c.strip()]
+    return [c for c in cams if c in ASSET_FILES.values()]
+
+
 rule extract_frames:
+    input:
+        cameras=camera_inputs,
     output:
         frames=f"{RESULTS}/{{scene}}/frames/frames.parquet",
         images=directory(f"{RESULTS}/{{scene}}/frames/images"),

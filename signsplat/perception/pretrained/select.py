@@ -1,0 +1,240 @@
+"""One signer in a crowded frame: which of the people the pose detector finds is the signer,
+kept the same over time, and the person mask restricted to that person.
+
+Rules (config ``perception.signer``, or a sheet row's ``signer`` column):
+
+- ``largest``: the person with the largest body (side of the pose detector's full-body
+  square: twice the distance from the mid-hip point to the size/rotation point);
+- ``central``: the person whose mid-hip point is nearest the frame's centre (distance over the
+  frame's diagonal);
+- ``box`` (``x, y, w, h`` in pixels of the extracted frames): the person whose body square
+  overlaps the box most (none when nobody overlaps it).
+
+Over time: once chosen, a person stays chosen while a detection's head box overlaps the last
+chosen head box by at least ``track_iou`` (heads of different people hardly overlap, whole
+bodies often do). When the track is lost the frame has no signer, and the last head box is
+looked for again, for up to ``patience`` frames; then the rule chooses again.
+
+Mask: the pose landmark model's person segmentation (sigmoid of its logits, in each person's
+region) mapped back to the frame; the signer's, above 0.5 and grown by ``margin`` x the body
+size, minus the pixels a nearby person claims with a higher probability, multiplies the matting
+model's alpha, so other people and the background around them drop out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from signsplat.perception.pretrained import mediapipe as mp
+
+RULES = ("largest", "central", "box")
+
+
+@dataclass(frozen=True)
+class SignerRule:
+    """How the signer is chosen (fields of config ``perception.signer``)."""
+
+    rule: str
+    box: tuple[float, float, float, float] | None
+    track_iou: float
+    margin: float
+    patience: int
+
+    def __post_init__(self):
+        if self.rule not in RULES:
+            raise ValueError(f"signer rule {self.rule!r} unknown; known: {', '.join(RULES)}")
+        if self.rule == "box" and self.box is None:
+            raise ValueError("signer rule 'box' needs a box x, y, w, h")
+
+    @classmethod
+    def from_config(cls, signer: dict) -> SignerRule:
+        box = signer.get("box")
+        return cls(signer["rule"], tuple(float(v) for v in box) if box else None,
+                   float(signer["track_iou"]), float(signer["margin"]),
+                   int(signer["patience"]))
+
+
+def parse_signer(text: str) -> dict:
+    """A sheet cell -> ``{"rule": ..., "box": ...}``: 'largest', 'central' or 'x,y,w,h'."""
+    text = text.strip()
+    if text in ("largest", "central"):
+        return {"rule": text, "box": None}
+    parts = text.split(",")
+    try:
+        box = [float(p) for p in parts]
+    except ValueError:
+        box = []
+    if len(box) != 4 or box[2] <= 0 or box[3] <= 0:
+        raise ValueError(f"signer {text!r}: expected 'largest', 'central' or a box 'x,y,w,h' "
+                         "with w, h > 0 (pixels)")
+    return {"rule": "box", "box": box}
+
+
+def body_boxes(det: mp.Detections) -> np.ndarray:
+    """(N, 4) xyxy axis-aligned full-body squares: centre at the mid-hip keypoint, side twice
+    its distance to the full-body size point."""
+    hip, scale = det.keypoints[:, 0], det.keypoints[:, 1]
+    half = np.linalg.norm(scale - hip, axis=1)
+    return np.concatenate([hip - half[:, None], hip + half[:, None]], axis=1)
+
+
+class SignerSelector:
+    """Chooses the signer among each frame's detections, frame after frame (:meth:`reset` at a
+    new view or sequence)."""
+
+    def __init__(self, rule: SignerRule):
+        self.rule = rule
+        self.last_head: np.ndarray | None = None
+        self.missing = 0  # frames since the tracked signer was last seen
+
+    def reset(self) -> None:
+        self.last_head = None
+        self.missing = 0
+
+    def keep(self, head: np.ndarray) -> None:
+        """The signer was found (by this selector or another tracker) with this head box."""
+        self.last_head, self.missing = head, 0
+
+    def choose(self, det: mp.Detections, frame_wh: tuple[int, int]) -> tuple[int | None, str]:
+        """(index into ``det`` or None, how: 'tracked' or the rule's name)."""
+        if self.last_head is not None:
+            overlap = mp.iou(self.last_head, det.boxes) if len(det) else np.zeros(1)
+            best = int(np.argmax(overlap))
+            if overlap[best] >= self.rule.track_iou:
+                self.keep(det.boxes[best])
+                return best, "tracked"
+            self.missing += 1
+            if self.missing <= self.rule.patience:
+                return None, ""
+            self.last_head = None
+        if not len(det):
+            return None, ""
+        bodies = body_boxes(det)
+        if self.rule.rule == "largest":
+            i = int(np.argmax(bodies[:, 2] - bodies[:, 0]))
+        elif self.rule.rule == "central":
+            w, h = frame_wh
+            d = np.linalg.norm(det.keypoints[:, 0] - [w / 2, h / 2], axis=1)
+            i = int(np.argmin(d))
+        else:
+            x, y, bw, bh = self.rule.box
+            overlap = mp.iou(np.array([x, y, x + bw, y + bh]), bodies)
+            i = int(np.argmax(overlap))
+            if overlap[i] <= 0:
+                return None, ""
+        self.keep(det.boxes[i])
+        return i, self.rule.rule
+
+
+def person_probability(seg_logits: np.ndarray, roi: mp.Roi,
+                       frame_hw: tuple[int, int]) -> np.ndarray:
+    """Float32 (H, W) probability that a frame pixel belongs to the person: the pose model's
+    segmentation logits (h, w, in its crop ``roi``) through a sigmoid, mapped to the frame
+    (0 outside the crop)."""
+    h, w = seg_logits.shape
+    prob = (1.0 / (1.0 + np.exp(-np.clip(seg_logits, -60, 60)))).astype(np.float32)
+    H, W = frame_hw
+    # warpAffine with WARP_INVERSE_MAP takes frame pixel -> crop pixel: the crop's inverse
+    inv = cv2.invertAffineTransform(mp.crop_matrix(roi, (w, h)))
+    return cv2.warpAffine(prob, inv, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
+                margin: float) -> np.ndarray:
+    """Bool (H, W) region of the chosen person from per-person probabilities (H, W): where
+    the chosen person's is above 0.5, grown by ``margin * body_size`` pixels, minus the pixels
+    another person claims with a higher probability."""
+    region = (chosen > 0.5).astype(np.uint8)
+    grow = int(round(margin * body_size))
+    if grow > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+        region = cv2.dilate(region, k)
+    keep = region.astype(bool)
+    for other in others:
+        keep &= ~((other > 0.5) & (other > chosen))
+    return keep
+
+
+# Columns of a persons row (the ``persons`` table adds scene, view, frame).
+PERSON_COLUMNS = ("person", "score", "hip_x", "hip_y", "scale_x", "scale_y", "head_x0",
+                  "head_y0", "head_x1", "head_y1", "chosen", "chosen_by")
+
+
+class SignerMasking:
+    """The segment stage's signer step with the pretrained detectors: per frame, the people
+    the pose detector finds, the signer among them and the matting alpha restricted to the
+    signer (:func:`person_mask`).
+
+    The signer is followed as MediaPipe's pose tracking follows a person: the pose model runs
+    in the region its landmarks gave in the last frame (auxiliary points 33, 34); while it
+    still finds a pose there, that is the signer ('tracked'; the detection whose mid-hip point
+    is within a quarter body of it, if any, is marked). Otherwise :class:`SignerSelector`
+    chooses among the detections (head-box tracking, then the rule)."""
+
+    max_people = 4  # the signer's neighbours whose regions are cut out of the signer's
+
+    def __init__(self, spec, rule: SignerRule, threads: int = 1):
+        from signsplat.perception.pretrained.keypointer import MediaPipeWholeBody
+
+        self.model = MediaPipeWholeBody(spec, threads)
+        self.selector = SignerSelector(rule)
+        self.rule = rule
+        self._view = None
+        self.prev: tuple[np.ndarray, np.ndarray] | None = None  # last (hip, scale point)
+
+    def __call__(self, image: np.ndarray, alpha: np.ndarray,
+                 view: int) -> tuple[np.ndarray, list[dict]]:
+        """(restricted alpha, one row per detected person) for one frame."""
+        if view != self._view:
+            self.selector.reset()
+            self.prev = None
+            self._view = view
+        h, w = image.shape[:2]
+        det = self.model.detect_persons(image)
+        min_presence = self.model.spec.min_pose_presence
+        rows = [dict(zip(PERSON_COLUMNS, (
+            j, float(det.scores[j]), *det.keypoints[j, 0], *det.keypoints[j, 1],
+            *det.boxes[j], False, ""), strict=True)) for j in range(len(det))]
+        chosen, how, signer = None, "", None
+        if self.prev is not None:
+            pose = self.model.pose(image, self.model.person_roi(*self.prev))
+            if pose.presence >= min_presence:
+                hip, scale = pose.points[33], pose.points[34]
+                body = 2.0 * float(np.linalg.norm(scale - hip))
+                near = np.linalg.norm(det.keypoints[:, 0] - hip, axis=1) if len(det) else []
+                if len(det) and near.min() < body / 4:
+                    chosen = int(np.argmin(near))
+                    self.selector.keep(det.boxes[chosen])
+                else:  # the pose model still sees the signer; the detector missed them
+                    chosen = len(rows)
+                    rows.append(dict(zip(PERSON_COLUMNS, (
+                        chosen, np.nan, *hip, *scale, *[np.nan] * 4, False, ""), strict=True)))
+                how, signer = "tracked", (pose, hip, scale)
+        if signer is None:
+            chosen, how = self.selector.choose(det, (w, h))
+            if chosen is not None:
+                hip, scale = det.keypoints[chosen, 0], det.keypoints[chosen, 1]
+                pose = self.model.pose(image, self.model.person_roi(hip, scale))
+                if pose.presence >= min_presence:
+                    signer = (pose, hip, scale)
+        if signer is None:
+            self.prev = None
+            return np.zeros_like(alpha), rows
+        pose, hip, scale = signer
+        rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
+        self.prev = (pose.points[33], pose.points[34])
+        others = []
+        for j in range(min(len(det), self.max_people)):
+            if j == chosen:
+                continue
+            other = self.model.pose(image, self.model.person_roi(*det.keypoints[j, :2]))
+            if other.presence >= min_presence:
+                others.append(person_probability(other.segmentation, other.roi, (h, w)))
+        body = 2.0 * float(np.linalg.norm(scale - hip))
+        region = person_mask(person_probability(pose.segmentation, pose.roi, (h, w)), others,
+                             body, self.rule.margin)
+        return alpha * region, rows

@@ -1,0 +1,90 @@
+"""Which detectors a sequence uses: the shipped ones for synthetic scenes, the pretrained
+real-world ones for footage, a sheet row's `detectors` column over both; the model files each
+choice makes the workflow wait for (the pretrained ones are `fetch_models`' outputs)."""
+
+from __future__ import annotations
+
+import pytest
+
+from signsplat.config import ConfigError, load_sequences, validate
+from signsplat.perception.detectors import asset_files, detector_files, detectors_for
+
+CFG = validate({}, "stages/perception.schema.yaml")
+
+
+def _sheet(tmp_path, text):
+    path = tmp_path / "seq.tsv"
+    path.write_text(text.replace("|", "\t"))
+    return {"sequences": str(path), "scenes": []}
+
+
+def test_defaults_by_source_and_the_sheet_override(tmp_path):
+    from signsplat.config import REPO_ROOT
+
+    spec = f"{REPO_ROOT}/config/scenes/studio6.yaml"
+    seqs = load_sequences(_sheet(tmp_path, "sequence|source|spec|cameras|detectors\n"
+                                 f"s6|synthetic|{spec}||\n"
+                                 f"s6p|synthetic|{spec}||pretrained\n"
+                                 "clip|video||a.mp4|\n"
+                                 "clip_s|video||a.mp4|shipped\n"))
+    got = {name: detectors_for(row, CFG) for name, row in seqs.items()}
+    assert got == {"s6": "shipped", "s6p": "pretrained", "clip": "pretrained",
+                   "clip_s": "shipped"}
+    cfg = validate({"detectors": {"video": "shipped"}}, "stages/perception.schema.yaml")
+    assert detectors_for(seqs["clip"], cfg) == "shipped"
+
+
+def test_unknown_detectors_value_names_the_line(tmp_path):
+    with pytest.raises(ConfigError, match=r"line 2.*'detectors'.*'shipped', 'pretrained'"):
+        load_sequences(_sheet(tmp_path, "sequence|source|cameras|detectors\nx|video|a.mp4|rtmw\n"))
+
+
+def test_files_each_choice_reads():
+    shipped = detector_files(CFG, "shipped")
+    assert shipped == {"segmenter": ["models/segmenter.onnx"],
+                       "keypoints": ["models/keypoints.onnx"]}
+    pre = detector_files(CFG, "pretrained")
+    assert pre["segmenter"] == ["models/cache/modnet.onnx"]
+    assert len(pre["keypoints"]) == 6 and all(f.startswith("models/cache/") and f.endswith(".onnx")
+                                              for f in pre["keypoints"])
+    # the example clip is a fetched asset in the same cache (the fetch_assets rule makes it)
+    moved = {**CFG, "pretrained": {**CFG["pretrained"], "cache": "/elsewhere"}}
+    assert asset_files(moved) == {"demovideo": "/elsewhere/demovideo.mp4"}
+
+
+def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
+    """The stage's --device reaches every model spec (onnxruntime providers follow it); the
+    MediaPipe spec takes its settings from the schema only."""
+    import dataclasses
+
+    from signsplat.perception.detectors import detector_specs
+    from signsplat.perception.pretrained.keypointer import MediaPipeSpec
+
+    cfg = {**CFG, "pretrained": {**CFG["pretrained"], "cache": str(tmp_path)}}
+    open(detector_files(cfg, "pretrained")["segmenter"][0], "wb").close()  # model_file checks
+    for detectors in ("shipped", "pretrained"):
+        seg, kp = detector_specs(cfg, detectors, "cpu")
+        assert seg.device == "cpu" and kp.device == "cpu", detectors
+    _, kp = detector_specs(cfg, "pretrained", "cuda:1")
+    assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
+    assert [f.name for f in dataclasses.fields(MediaPipeSpec)
+            if f.default is not dataclasses.MISSING] == []
+
+
+def test_mediapipe_sessions_open_on_the_spec_device(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from signsplat.perception.pretrained import keypointer as kpr
+
+    seen = []
+
+    def fake_session(path, threads, what, device):
+        seen.append(device)
+        size = next(m["size"] for m in kpr.MODELS if m["name"] in what)
+        return SimpleNamespace(get_inputs=lambda: [SimpleNamespace(shape=[1, 3, size, size])])
+
+    monkeypatch.setattr(kpr, "open_session", fake_session)
+    monkeypatch.setattr(kpr, "model_file", lambda cache, name: tmp_path / f"{name}.onnx")
+    spec = kpr.MediaPipeSpec.from_config(CFG["pretrained"], device="cuda:1")
+    kpr.MediaPipeWholeBody(spec, threads=1)
+    assert seen == ["cuda:1"] * len(kpr.MODELS)

@@ -1,0 +1,88 @@
+"""One signer in a crowded frame: the rules (largest, central, box), keeping the choice over
+time (head-box tracking, patience), the sheet's signer column, and cutting the mask to the
+signer. No model needed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from signsplat.config import validate
+from signsplat.perception.detectors import perception_for
+from signsplat.perception.pretrained import mediapipe as mp
+from signsplat.perception.pretrained.select import (SignerRule, SignerSelector, body_boxes,
+                                                    parse_signer, person_mask)
+
+CFG = validate({}, "stages/perception.schema.yaml")
+FRAME = (400, 200)
+
+
+def det(*people):
+    """Detections of people given as (hip_x, hip_y, half body size, head_x); best first."""
+    boxes, kps = [], []
+    for hx, hy, half, head_x in people:
+        boxes.append([head_x - 10, 20, head_x + 10, 40])
+        kps.append([[hx, hy], [hx, hy - half], [hx, hy - half / 2], [hx, hy - half]])
+    return mp.Detections(np.array(boxes, float), np.array(kps, float),
+                         np.linspace(0.9, 0.6, len(people)))
+
+
+def rule(name="largest", box=None, patience=2):
+    return SignerRule(name, box, 0.3, 0.03, patience)
+
+
+def test_rules_pick_largest_central_and_boxed():
+    people = det((60, 150, 60, 60), (210, 150, 40, 210), (330, 150, 90, 330))
+    assert SignerSelector(rule("largest")).choose(people, FRAME) == (2, "largest")
+    assert SignerSelector(rule("central")).choose(people, FRAME) == (1, "central")
+    boxed = SignerSelector(rule("box", (0, 0, 120, 200)))
+    assert boxed.choose(people, FRAME) == (0, "box")
+    nobody = SignerSelector(rule("box", (390, 0, 10, 10)))
+    assert nobody.choose(det((60, 150, 60, 60)), FRAME) == (None, "")
+    b = body_boxes(people)
+    np.testing.assert_allclose(b[2], [240, 60, 420, 240])
+
+
+def test_choice_is_kept_while_the_head_is_tracked():
+    sel = SignerSelector(rule("largest"))
+    assert sel.choose(det((100, 150, 50, 100), (300, 150, 40, 300)), FRAME)[0] == 0
+    # the other person grows larger and the detector lists them first: still the same signer
+    assert sel.choose(det((300, 150, 90, 302), (102, 150, 50, 103)), FRAME) == (1, "tracked")
+
+
+def test_patience_waits_for_a_lost_signer_then_rechooses():
+    sel = SignerSelector(rule("largest", patience=2))
+    sel.choose(det((100, 150, 50, 100), (300, 150, 40, 300)), FRAME)
+    other_only = det((300, 150, 40, 300))
+    assert sel.choose(other_only, FRAME) == (None, "")  # signer missed: no signer
+    assert sel.choose(det((101, 150, 50, 101), (300, 150, 40, 300)), FRAME) == (0, "tracked")
+    for _ in range(2):
+        assert sel.choose(other_only, FRAME) == (None, "")
+    assert sel.choose(other_only, FRAME) == (0, "largest")  # patience used up
+
+
+def test_sheet_signer_column():
+    assert parse_signer("central") == {"rule": "central", "box": None}
+    assert parse_signer("10,20,30.5,40") == {"rule": "box", "box": [10.0, 20.0, 30.5, 40.0]}
+    for bad in ("biggest", "1,2,3", "1,2,0,4"):
+        with pytest.raises(ValueError, match="largest.*central.*x,y,w,h"):
+            parse_signer(bad)
+    row = {"sequence": "c", "source": "video", "signer": "5,6,7,8"}
+    cfg = perception_for(row, CFG)
+    assert cfg["signer"]["rule"] == "box" and cfg["signer"]["box"] == [5.0, 6.0, 7.0, 8.0]
+    assert CFG["signer"]["rule"] == "largest"  # the shared section is left as it was
+    assert perception_for({"sequence": "c", "source": "video"}, CFG) is CFG
+    assert SignerRule.from_config(cfg["signer"]).box == (5.0, 6.0, 7.0, 8.0)
+    with pytest.raises(ValueError, match="needs a box"):
+        SignerRule("box", None, 0.3, 0.03, 2)
+
+
+def test_mask_is_cut_to_the_signer():
+    h, w = 60, 100
+    _, xx = np.mgrid[:h, :w]
+    signer = np.where(np.abs(xx - 30) < 15, 0.9, 0.05).astype(np.float32)  # columns 16-44
+    other = np.where(np.abs(xx - 55) < 15, 0.95, 0.05).astype(np.float32)  # columns 41-69
+    region = person_mask(signer, [other], body_size=100.0, margin=0.03)
+    assert region[:, 13:41].all()  # the signer grown by 3 px on the free side ...
+    assert not region[:, :13].any()
+    assert not region[:, 41:].any()  # ... and not where the other one is more likely
