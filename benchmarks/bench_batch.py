@@ -68,18 +68,7 @@ def run_config(work: Path, sheet: Path, avatar_steps: int) -> tuple[Path, Path]:
     results = work / "results"
     cfg = {
         "results": str(results), "sequences": str(sheet), "scenes": [],
-        "fit": {"keypoints": "ground_truth",
-                "multiview": {"stages": [
-                    {"name": "root", "iterations": 5, "lr": 0.05, "groups": ["root"],
-                     "warm_start": True},
-                    {"name": "body", "iterations": 5, "lr": 0.03,
-                     "groups": ["root", "body", "betas"]}]},
-                "singleview": {
-                    "hypothesis_iterations": 2,
-                    "init_stages": [{"name": "body", "iterations": 5, "lr": 0.04,
-                                     "groups": ["root", "body", "betas"]}],
-                    "refine_stages": [{"name": "refine", "iterations": 2, "lr": 0.003,
-                                       "groups": ["root", "body"]}]}},
+        "fit": yaml.safe_load((ROOT / "config" / "fit_few_steps.yaml").read_text())["fit"],
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": avatar_steps, "test_interval": 2, "test_offset": 1,
                              "log_every": 10, "checkpoint_every": 1000},

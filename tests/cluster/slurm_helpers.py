@@ -97,18 +97,7 @@ def tiny_config(work: Path, name: str = "config.yaml") -> Path:
     cfg = {
         "results": str(work / "results"), "sequences": str(work / "sequences.tsv"),
         "scenes": ["tiny"],
-        "fit": {"keypoints": "ground_truth",
-                "multiview": {"stages": [
-                    {"name": "root", "iterations": 5, "lr": 0.05, "groups": ["root"],
-                     "warm_start": True},
-                    {"name": "body", "iterations": 5, "lr": 0.03,
-                     "groups": ["root", "body", "betas"]}]},
-                "singleview": {
-                    "hypothesis_iterations": 2,
-                    "init_stages": [{"name": "body", "iterations": 5, "lr": 0.04,
-                                     "groups": ["root", "body", "betas"]}],
-                    "refine_stages": [{"name": "refine", "iterations": 2, "lr": 0.003,
-                                       "groups": ["root", "body"]}]}},
+        "fit": yaml.safe_load((ROOT / "config" / "fit_few_steps.yaml").read_text())["fit"],
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,
                              "log_every": 2, "checkpoint_every": 50},
