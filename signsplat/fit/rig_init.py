@@ -843,6 +843,18 @@ def _assemble(cands, first: str, order, prior) -> tuple[np.ndarray, np.ndarray,
     return (R, t, st) if used else None
 
 
+def choose_rig(scores: dict[str, float], order, prior_margin: float) -> str:
+    """The winning whole rig: the lowest held-out score (ties: the earlier in ``order``),
+    except that the configured arc ("prior") stays unless the best score is below
+    ``prior_margin`` times the prior's. Detector bias makes even the true rig score somewhat
+    worse than the keypoints' own optimum, so a small gain is no evidence against the prior."""
+    best = min(scores, key=lambda n: (scores[n], order.index(n)))
+    if "prior" in scores and best != "prior" and \
+            not scores[best] < prior_margin * scores["prior"]:
+        return "prior"
+    return best
+
+
 def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
                 cfg: dict) -> RigHypotheses:
     """Cameras without ground truth and without assuming the rig (see the module docstring).
@@ -895,6 +907,11 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                 if al is not None and (aligned is None or al[2] < aligned[2]):
                     aligned, rec_used = al, branch
             rec = rec_used if aligned is not None else rec
+        if aligned is not None and aligned[2] > ic["max_body_residual"]:
+            log.warning("camera init (sfm): rejected, its points do not match the body's "
+                        "shape (alignment residual %.2f > max_body_residual %.2f): the "
+                        "two-view geometry is likely wrong", aligned[2], ic["max_body_residual"])
+            aligned = None
         if aligned is not None:
             for v in np.nonzero(rec.registered)[0]:
                 cands[v]["sfm"] = (aligned[0][v], aligned[1][v])
@@ -907,6 +924,10 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                                cfg["init_frames"])
             if al is not None and (best_aff is None or al[2] < best_aff[1][2]):
                 best_aff = (rec, al)
+        if best_aff is not None and best_aff[1][2] > ic["max_body_residual"]:
+            log.warning("camera init (affine): rejected, alignment residual %.2f > "
+                        "max_body_residual %.2f", best_aff[1][2], ic["max_body_residual"])
+            best_aff = None
         if best_aff is not None:
             rec, al = best_aff
             for v in np.nonzero(rec.registered)[0]:
@@ -914,23 +935,27 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
             log.info("camera init (affine): %d of %d views registered, body alignment "
                      "residual %.2f", int(rec.registered.sum()), len(live), al[2])
     scores: dict[str, float] = {}
-    rigs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    best = None
+    tried: dict[str, tuple] = {}
     for name in order:
         rig = _assemble(cands, name, order, prior)
         if rig is None:
             continue
         px = heldout_errors(K, rig[0], rig[1], uv_t, w_t, limit, robust_px=thr)
         scores[name] = rig_score(px, live, limit)
-        rigs[name] = (rig[0], rig[1])
+        tried[name] = (rig, px)
         log.info("camera init: hypothesis %r (%s) -> held-out %.2f px (per view %s)", name,
                  ",".join(rig[2]), scores[name], np.round(px, 2).tolist())
-        if best is None or scores[name] < scores[best[0]]:
-            best = (name, rig, px)
-    if best is None:  # no view with detections
+    rigs = {name: (rig[0], rig[1]) for name, (rig, _) in tried.items()}
+    if not scores:  # no view with detections
         return RigHypotheses(prior.R.copy(), prior.t.copy(), ["no_detections"] * V, "none",
                              scores, np.full(V, np.nan))
-    winner, (R, t, status), px = best
+    winner = choose_rig(scores, order, ic["prior_margin"])
+    best = min(scores, key=lambda n: (scores[n], order.index(n)))
+    if winner != best:
+        log.info("camera init: keeping the configured rig ('prior', %.2f px): the best other "
+                 "hypothesis %r (%.2f px) is not below %.2f x its error", scores[winner], best,
+                 scores[best], ic["prior_margin"])
+    (R, t, status), px = tried[winner]
     R, t, status = R.copy(), t.copy(), list(status)
     for v in live:
         if not np.isfinite(px[v]) or px[v] > limit[v]:
