@@ -193,14 +193,16 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                            dtype=dtype, device=device, up=up, level_cameras=up is not None,
                            masks=masks, **flow_args)
     history = {}
+    solved: set[str] = set()
     for st_cfg in mv["stages"]:
         stage = Stage.from_config(st_cfg)
         ts = time.perf_counter()
         if stage.warm_start:
             history[stage.name] = run_warm_started(problem, params, cams, stage,
-                                                   mv["chunk"], fitted)
+                                                   mv["chunk"], fitted, solved)
         else:
             history[stage.name] = run_stage(problem, params, cams, stage)[-1:]
+        solved |= set(stage.groups)
         log.info("stage %s: %.1f s, final loss %s", stage.name, time.perf_counter() - ts,
                  np.round(history[stage.name], 3).tolist())
     raw = params.export()

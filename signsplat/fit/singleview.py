@@ -168,9 +168,11 @@ class NeutralPoseInitialiser:
         fitted, _ = seq.fitted_mask(obs[None], self.cfg["min_keypoints"])
         problem = make_problem(self.kpm, obs[None], self.cfg, dtype=self.dtype,
                                device=self.device)
+        solved: set[str] = set()
         for st_cfg in sv["init_stages"]:
-            run_warm_started(problem, params, cams, Stage.from_config(st_cfg), sv["chunk"],
-                             fitted)
+            stage = Stage.from_config(st_cfg)
+            run_warm_started(problem, params, cams, stage, sv["chunk"], fitted, solved)
+            solved |= set(stage.groups)
         out = params.export()
         out["betas"] = out["betas"][:1]
         return out

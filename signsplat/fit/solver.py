@@ -362,30 +362,41 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     return history
 
 
-def copy_frame(params: FitParams, src: int, dst: slice) -> None:
-    """Warm start: copy every per-frame block of frame ``src`` into frames ``dst``."""
+#: the per-frame blocks of each parameter group (what a warm start can copy)
+FRAME_BLOCKS = {"root": ("global_orient", "transl"), "body": ("body_pose",),
+                "hands": ("left_free", "right_free"), "face": ("jaw_pose", "expression")}
+
+
+def copy_frame(params: FitParams, src: int, dst: slice, groups=tuple(FRAME_BLOCKS)) -> None:
+    """Warm start: copy the per-frame blocks of ``groups`` of frame ``src`` into frames
+    ``dst`` (groups without per-frame blocks, betas and cameras, are ignored)."""
     with torch.no_grad():
-        for name in ("global_orient", "transl", "body_pose", "jaw_pose", "expression",
-                     "left_free", "right_free"):
-            p = getattr(params, name)
-            p[dst] = p[src]
+        for group in groups:
+            for name in FRAME_BLOCKS.get(group, ()):
+                p = getattr(params, name)
+                p[dst] = p[src]
 
 
 def run_warm_started(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
-                     chunk: int, valid: np.ndarray | None = None) -> list[float]:
+                     chunk: int, valid: np.ndarray | None = None,
+                     solved: frozenset[str] | set[str] = frozenset()) -> list[float]:
     """Run ``stage`` chunk by chunk; chunk k starts from the last frame solved in chunk k-1.
 
     ``valid (T,)`` bool marks frames with observations; the warm start copies the last valid
-    frame. Returns the final loss of each chunk.
+    frame. Only the stage's groups that no earlier stage has solved (``solved``: group names)
+    are copied: a block an earlier stage fitted frame by frame keeps its own values (copying
+    it would replace a moving signer's root by the previous chunk's). Returns the final loss
+    of each chunk.
     """
     T = params.num_frames
     chunk = max(int(chunk), 1)
+    fresh = [g for g in stage.groups if g not in solved]
     finals = []
     last_valid = None
     for start in range(0, T, chunk):
         stop = min(start + chunk, T)
-        if last_valid is not None:
-            copy_frame(params, last_valid, slice(start, stop))
+        if last_valid is not None and fresh:
+            copy_frame(params, last_valid, slice(start, stop), fresh)
         hist = run_stage(problem, params, cams, stage, slice(start, stop))
         finals.append(hist[-1] if hist else float("nan"))
         idx = np.arange(start, stop)
