@@ -851,8 +851,22 @@ def choose_rig(scores: dict[str, float], order, prior_margin: float) -> str:
     best = min(scores, key=lambda n: (scores[n], order.index(n)))
     if "prior" in scores and best != "prior" and \
             not scores[best] < prior_margin * scores["prior"]:
+        log.info("camera init: keeping the configured rig ('prior', %.2f px): the best other "
+                 "hypothesis %r (%.2f px) is not below %.2f x its error", scores["prior"],
+                 best, scores[best], prior_margin)
         return "prior"
     return best
+
+
+def _like_body(source: str, residual: float, bound: float) -> bool:
+    """Whether a reconstruction's alignment onto the rest body (:func:`align_to_body`'s
+    residual) is within ``bound``; a warning when it is not."""
+    if residual <= bound:
+        return True
+    log.warning("camera init (%s): rejected, its points do not match the body's shape "
+                "(alignment residual %.2f > max_body_residual %.2f): its geometry is likely "
+                "wrong", source, residual, bound)
+    return False
 
 
 def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
@@ -907,10 +921,7 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                 if al is not None and (aligned is None or al[2] < aligned[2]):
                     aligned, rec_used = al, branch
             rec = rec_used if aligned is not None else rec
-        if aligned is not None and aligned[2] > ic["max_body_residual"]:
-            log.warning("camera init (sfm): rejected, its points do not match the body's "
-                        "shape (alignment residual %.2f > max_body_residual %.2f): the "
-                        "two-view geometry is likely wrong", aligned[2], ic["max_body_residual"])
+        if aligned is not None and not _like_body("sfm", aligned[2], ic["max_body_residual"]):
             aligned = None
         if aligned is not None:
             for v in np.nonzero(rec.registered)[0]:
@@ -924,9 +935,8 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                                cfg["init_frames"])
             if al is not None and (best_aff is None or al[2] < best_aff[1][2]):
                 best_aff = (rec, al)
-        if best_aff is not None and best_aff[1][2] > ic["max_body_residual"]:
-            log.warning("camera init (affine): rejected, alignment residual %.2f > "
-                        "max_body_residual %.2f", best_aff[1][2], ic["max_body_residual"])
+        if best_aff is not None and not _like_body("affine", best_aff[1][2],
+                                                   ic["max_body_residual"]):
             best_aff = None
         if best_aff is not None:
             rec, al = best_aff
@@ -950,11 +960,6 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
         return RigHypotheses(prior.R.copy(), prior.t.copy(), ["no_detections"] * V, "none",
                              scores, np.full(V, np.nan))
     winner = choose_rig(scores, order, ic["prior_margin"])
-    best = min(scores, key=lambda n: (scores[n], order.index(n)))
-    if winner != best:
-        log.info("camera init: keeping the configured rig ('prior', %.2f px): the best other "
-                 "hypothesis %r (%.2f px) is not below %.2f x its error", scores[winner], best,
-                 scores[best], ic["prior_margin"])
     (R, t, status), px = tried[winner]
     R, t, status = R.copy(), t.copy(), list(status)
     for v in live:

@@ -362,18 +362,16 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
     return history
 
 
-#: the per-frame blocks of each parameter group (what a warm start can copy)
-FRAME_BLOCKS = {"root": ("global_orient", "transl"), "body": ("body_pose",),
-                "hands": ("left_free", "right_free"), "face": ("jaw_pose", "expression")}
-
-
-def copy_frame(params: FitParams, src: int, dst: slice, groups=tuple(FRAME_BLOCKS)) -> None:
-    """Warm start: copy the per-frame blocks of ``groups`` of frame ``src`` into frames
-    ``dst`` (groups without per-frame blocks, betas and cameras, are ignored)."""
+def copy_frame(params: FitParams, src: int, dst: slice, groups) -> None:
+    """Warm start: copy the per-frame blocks of the parameter ``groups`` (names of
+    :meth:`FitParams.groups`) of frame ``src`` into frames ``dst``. The betas, shared by every
+    frame, and the cameras, which are not per frame, are never copied."""
+    blocks = params.groups()
     with torch.no_grad():
         for group in groups:
-            for name in FRAME_BLOCKS.get(group, ()):
-                p = getattr(params, name)
+            if group == "betas":
+                continue
+            for p in blocks.get(group, ()):
                 p[dst] = p[src]
 
 
