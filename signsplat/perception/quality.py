@@ -75,6 +75,11 @@ def hand_visible(xy: np.ndarray, sc: np.ndarray, side: str, size_wh: tuple[int, 
         & np.isfinite(centre).all(axis=1)
 
 
+def hand_found(sc: np.ndarray, side: str, min_score: float) -> np.ndarray:
+    """(T,) bool: at least half of the hand's 21 points score ``min_score`` or more."""
+    return (sc[:, list(PARTS[side])] >= min_score).mean(1) >= 0.5
+
+
 def quality_rows(xy: np.ndarray, sc: np.ndarray, size_wh: tuple[int, int],
                  min_score: float = 0.5) -> list[tuple[str, str, float, int]]:
     """(metric, part, value, count) rows for one view's (T, 133, 2) / (T, 133) keypoints."""
@@ -87,7 +92,7 @@ def quality_rows(xy: np.ndarray, sc: np.ndarray, size_wh: tuple[int, int],
     rows.append(("detection_rate", "face", float(face.mean()) if t else np.nan, t))
     for side in ("left_hand", "right_hand"):
         vis = hand_visible(xy, sc, side, size_wh, min_score)
-        hand = found[:, list(PARTS[side])].mean(1) >= 0.5
+        hand = hand_found(sc, side, min_score)
         rows.append(("detection_rate", side, float(hand[vis].mean()) if vis.any() else np.nan,
                      int(vis.sum())))
         rows.append(("visible_rate", side, float(vis.mean()) if t else np.nan, t))
