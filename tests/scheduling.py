@@ -10,8 +10,9 @@ import os
 # and no entry here counts 30 s.
 HEAVY = {
     # the cluster tests mostly wait for SLURM jobs (their CPU is spent outside the worker)
-    "tests/cluster/test_slurm.py": 400,
-    "tests/test_workflow.py": 200, "tests/test_batch.py": 150, "tests/fit/test_fit.py": 100,
+    "tests/cluster/test_slurm.py": 360,
+    # the session's tiny run (tests/workflow_runs.py) counts where it is first asked for
+    "tests/test_workflow.py": 200, "tests/test_batch.py": 60, "tests/fit/test_fit.py": 100,
     "tests/perception/test_shipped_models.py": 60, "tests/perception/test_train.py": 60,
     "tests/render/test_raster_gradcheck.py": 30, "tests/perception/test_stages.py": 30,
     "tests/test_device.py": 30, "tests/fit/test_flow.py": 30, "tests/fit/test_silhouette.py": 30,

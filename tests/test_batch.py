@@ -1,8 +1,8 @@
 """Batch runs (issue 9): the slurm profile's resources, caching, resume after a kill.
 
 These drive the real workflow through Snakemake on the tiny scene (2 views x 4 frames).
-The shared assets (body model, gloss library) are built once and copied into each run's
-results folder, so each test only runs what it is about.
+The shared assets (body model, gloss library) come from the session's tiny run and are
+copied into each run's results folder, so each test only runs what it is about.
 """
 
 import json
@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from workflow_runs import tiny_local_run
 
 from signsplat.io.atomic import is_temporary
 from signsplat.io.tables import read_table
@@ -32,15 +33,9 @@ def snakemake(*args, timeout=900, **kw):
 
 @pytest.fixture(scope="module")
 def assets(tmp_path_factory):
-    """Body model and gloss library written once, by the workflow's own rules."""
-    results = tmp_path_factory.mktemp("assets_results")
-    cfg = tmp_path_factory.mktemp("assets_cfg") / "config.yaml"
-    cfg.write_text(yaml.safe_dump({"results": str(results), "sequences": None,
-                                   "scenes": ["tiny"]}))
-    res = snakemake(str(results / "_assets" / "body_model.npz"),
-                    str(results / "_assets" / "gloss_library.parquet"), "--configfile", str(cfg))
-    assert res.returncode == 0, res.stderr[-3000:]
-    return results / "_assets"
+    """Body model and gloss library, as the workflow's own rules wrote them in the session's
+    tiny run (tests/workflow_runs.py)."""
+    return tiny_local_run(tmp_path_factory) / "results" / "_assets"
 
 
 def _setup(tmp_path, assets, scenes):

@@ -1,6 +1,7 @@
 """The workflow: `snakemake -n` plans the default config; the simulate rule runs on a tiny scene."""
 
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -9,6 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+
+from workflow_runs import tiny_config, tiny_local_run
 
 from signsplat.avatar.config import resolve
 from signsplat.report.variants import ablation_plan, sweep_plan
@@ -83,54 +86,45 @@ def test_dry_run_rejects_an_unknown_effect(tmp_path):
     assert "bloom" in out and "camera_jitter" in out
 
 
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """The session's local run of the two tiny sequences (tests/workflow_runs.py)."""
+    return tiny_local_run(tmp_path_factory)
+
+
 @pytest.mark.slow
-def test_simulate_rule_runs_on_the_tiny_scene(tmp_path):
-    cfg = tmp_path / "config.yaml"
-    cfg.write_text(yaml.safe_dump({"results": str(tmp_path / "results"), "sequences": None,
-                                   "scenes": ["tiny"]}))
-    target = tmp_path / "results" / "tiny" / "sim" / "frames.parquet"
-    res = snakemake(str(target), "--configfile", str(cfg))
-    assert res.returncode == 0, res.stderr[-4000:]
-    sim = target.parent
+def test_simulate_rule_ran_on_the_tiny_scene(tiny_run):
+    results = tiny_run / "results"
+    sim = results / "tiny" / "sim"
     for name in ("frames", "cameras", "smplx_gt", "keypoints_gt"):
         assert (sim / f"{name}.parquet").is_file()
     assert len(list((sim / "images").rglob("*.png"))) == 2 * 4
     assert len(list((sim / "masks").rglob("*.png"))) == 2 * 4
-    log = (tmp_path / "results" / "_logs" / "tiny" / "simulate.log").read_text()
+    log = (results / "_logs" / "tiny" / "simulate.log").read_text()
     assert "ms per frame per view" in log
-    assert (tmp_path / "results" / "_benchmarks" / "tiny" / "simulate.tsv").is_file()
-    # nothing left to do: a second dry run plans no job
-    res = snakemake("-n", str(target), "--configfile", str(cfg))
-    assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
+    assert (results / "_benchmarks" / "tiny" / "simulate.tsv").is_file()
+    # nothing left to do: a dry run of the finished run plans no job
+    res = snakemake("-n", "--configfile", str(tiny_run / "config.yaml"))
+    assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr, \
+        res.stdout[-3000:]
+
+
+# A tiny ablation study and sweep (merged over config/config.yaml's sections: the default
+# bases' other keys stay), fitted like the demo avatar, so the full model and the sweep centre
+# are `demo`.
+STUDIES = {
+    "ablations": {"base": {"train": {"smplx_source": "fitted"}}, "iterations": [4],
+                  "test_views": [1], "regularizer_scales": [0, 0.5, 1]},
+    "sweep": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}},
+              "iterations": [2], "resolution": [], "max_points": []},
+}
 
 
 def tiny_study_config(tmp_path, **extra) -> Path:
-    """The tiny scene with a tiny avatar (few steps, no mesh upsampling), fitted from the
-    simulator's keypoints in a few steps, one stitched sentence, the report under tmp_path."""
-    cfg = {
-        "results": str(tmp_path / "results"), "sequences": None, "scenes": ["tiny"],
-        "fit": {"keypoints": "ground_truth", "multiview": {"stages": [
-            {"name": "root", "iterations": 5, "lr": 0.05, "groups": ["root"],
-             "warm_start": True},
-            {"name": "body", "iterations": 5, "lr": 0.03, "groups": ["root", "body", "betas"]}]}},
-        "avatar": {"upsample": {"max_rounds": 0},
-                   "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,
-                             "log_every": 2, "checkpoint_every": 50},
-                   "eval": {"refine_steps": 0, "save_images": 2},
-                   "strategy": {"refine_start": 1, "refine_every": 2, "refine_stop": 4}},
-        # (merged over config/config.yaml's sections: the default bases' other keys stay)
-        # fitted like the demo avatar, so the full model and the sweep centre are `demo`
-        "ablations": {"base": {"train": {"smplx_source": "fitted"}}, "iterations": [4],
-                      "test_views": [1], "regularizer_scales": [0, 0.5, 1]},
-        "sweep": {"base": {"train": {"iterations": 4, "smplx_source": "fitted"}},
-                  "iterations": [2], "resolution": [],
-                  "max_points": []},
-        "stitch": {"sentences": ["Why are you sad?"], "size": 64},
-        "report": {"html": str(tmp_path / "report" / "index.html")},
-    }
-    cfg.update(extra)
-    path = tmp_path / "config.yaml"
-    path.write_text(yaml.safe_dump(cfg))
+    """The session run's config (tests/workflow_runs.py: two tiny sequences, the smallest fit,
+    avatar and stitching settings) with the tiny studies, results and report under tmp_path."""
+    path = tiny_config(tmp_path)
+    path.write_text(yaml.safe_dump({**yaml.safe_load(path.read_text()), **STUDIES, **extra}))
     return path
 
 
@@ -219,20 +213,28 @@ def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path)
     res = snakemake("-n", "ablations", "--configfile", str(bad))
     assert res.returncode != 0
     out = res.stdout + res.stderr
-    assert "ablations.scene" in out and "'nowhere'" in out and "['tiny']" in out
+    assert "ablations.scene" in out and "'nowhere'" in out and "['tiny', 'tiny1']" in out
 
 
 @pytest.mark.slow
-def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path):
-    """Real run on the tiny scene: a tiny demo avatar and one sweep point are trained and
-    evaluated, the sweep table and plot written, the demo avatar signs a sentence
-    (stitch_video), the HTML report shows them, and `snakemake --report` works."""
-    cfg = tiny_study_config(tmp_path)
+def test_tiny_sweep_stitch_and_reports_run_end_to_end(tmp_path, tiny_run):
+    """Real run on the tiny scene, from a copy of the session's finished run (its tiny demo
+    avatar, trained, evaluated and signing a sentence): one sweep point is trained and
+    evaluated beside the demo avatar, the sweep table and plot written, the HTML report shows
+    them and the stitched video, and `snakemake --report` works."""
     results = tmp_path / "results"
     page = tmp_path / "report" / "index.html"
+    shutil.copytree(tiny_run / "results", results)  # times kept: the copies are up to date
+    cfg = tmp_path / "config.yaml"
+    cfg.write_text(yaml.safe_dump({**yaml.safe_load((tiny_run / "config.yaml").read_text()),
+                                   **STUDIES, "results": str(results),
+                                   "report": {"html": str(page)}}))
     stitched = results / "tiny" / "stitched" / "stitch_eval.parquet"
     res = snakemake("sweep", str(stitched), "--configfile", str(cfg), timeout=1800)
     assert res.returncode == 0, res.stderr[-4000:]
+    # only the sweep point and its table ran: the demo avatar (the sweep's centre) is reused
+    assert job_counts(res.stdout + res.stderr) == {
+        "train_avatar": 1, "evaluate_avatar": 1, "sweep_table": 1, "sweep": 1, "total": 4}
     # the report takes the study tables that exist when its DAG is built (as `make sweep`
     # does, it runs after them; in one call with them the order would be up to the scheduler)
     res = snakemake(str(page), "--configfile", str(cfg), timeout=1800)

@@ -23,8 +23,10 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
+from workflow_runs import tiny_local_run
+
 from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, shared_once,
-                       slurm_args, snakemake, tiny_config)
+                            slurm_args, snakemake, tiny_config)
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -58,18 +60,10 @@ def slurm_run(slurm_cluster, tmp_path_factory):
                            seconds=run["seconds"])
 
 
-def _local_run(work: Path) -> dict:
-    work.mkdir(parents=True, exist_ok=True)
-    cfg = tiny_config(work)
-    res = snakemake("--cores", "2", "--configfile", str(cfg))
-    assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]
-    return {"work": str(work)}
-
-
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory):
-    """The same two sequences run locally (once per session)."""
-    work = Path(shared_once(tmp_path_factory, "local_run", _local_run)["work"])
+    """The same two sequences run locally (once per session, tests/workflow_runs.py)."""
+    work = tiny_local_run(tmp_path_factory)
     return SimpleNamespace(work=work, results=work / "results")
 
 
