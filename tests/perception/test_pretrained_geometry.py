@@ -190,3 +190,15 @@ def test_handedness_convention_and_mirroring():
     back = mirror_sides(m, 640)
     np.testing.assert_allclose(back.pose, r.pose)
     assert back.hands["left"].left_prob == pytest.approx(0.95)
+
+
+def test_a_tracked_hand_is_kept_near_the_pose_wrist_or_when_the_wrist_is_unsure():
+    from signsplat.perception.pretrained.keypointer import tracked_hand_kept
+
+    wrist, elbow = np.array([100.0, 100.0]), np.array([100.0, 60.0])  # forearm 40 px
+    kept = [tracked_hand_kept(wrist + [dx, 0.0], wrist, elbow, 0.9, 0.25, 0.5)
+            for dx in (0.0, 9.9, 10.1, 80.0)]
+    assert kept == [True, True, False, False]
+    # an unsure wrist (fast motion) cannot tell: kept wherever it is
+    assert tracked_hand_kept(wrist + [80.0, 0.0], wrist, elbow, 0.3, 0.25, 0.5)
+    assert not tracked_hand_kept(np.array([np.nan, 1.0]), wrist, elbow, 0.9, 0.25, 0.5)

@@ -15,7 +15,10 @@ Per frame (ROI = rotated square region of interest, :mod:`.mediapipe`):
    ROI from the pose's wrist, index and pinky points (centre at the estimated middle finger,
    2.7x, shifted 0.1 towards the fingers) is re-cropped by MediaPipe's hand re-crop model
    (2 points -> a tight ROI), in which the hand landmark model (224 x 224) gives 21 points,
-   their presence and the handedness.
+   their presence and the handedness. With ``track``, a hand not found there is looked for
+   again in the ROI of the last frame's hand landmarks (2x, shifted 0.1 towards the fingers,
+   as MediaPipe's hand tracking does) and kept when :func:`tracked_hand_kept` says so: its
+   wrist near the pose's, which keeps a neighbour's hand in front of a hidden one out.
 4. **Face**: an ROI from the pose's face points (their box, turned eye-to-eye, 3x) in which
    the short-range face detector (128 x 128) finds faces; the one whose nose tip is nearest
    the pose's nose (not MediaPipe's best-scored one: in a crowd that can be a neighbour's)
@@ -37,6 +40,7 @@ from signsplat.perception.contracts import ModelContractError, open_session
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.fetch import FetchError, model_file
 from signsplat.perception.pretrained.wholebody import (
+    POSE_ELBOW,
     POSE_FACE_POINTS,
     POSE_HAND_POINTS,
     POSE_LEFT_EYE,
@@ -73,6 +77,8 @@ class MediaPipeSpec:
     min_pose_presence: float
     min_wrist_visibility: float
     min_hand_presence: float
+    hand_track_reach: float
+    hand_track_trust: float
     min_face_detection_score: float
     min_face_presence: float
     min_score: float
@@ -110,6 +116,7 @@ class FrameDebug:
     pose_roi: mp.Roi | None = None
     tracked: bool = False
     hand_rois: dict = field(default_factory=dict)
+    hands_tracked: set = field(default_factory=set)
     face_roi: mp.Roi | None = None
 
 
@@ -126,6 +133,18 @@ def _session(cache: str, name: str, size: int, threads: int, device: str):
     return sess
 
 
+def tracked_hand_kept(hand_wrist, pose_wrist, pose_elbow, wrist_visibility: float,
+                      reach: float, trust: float) -> bool:
+    """Whether a hand found where the last frame's hand was belongs to this pose: its wrist
+    lies within ``reach`` forearm lengths (pose wrist to elbow) of the pose's wrist, or the
+    pose's wrist scores below ``trust`` and cannot tell."""
+    if wrist_visibility < trust:
+        return True
+    forearm = float(np.linalg.norm(np.subtract(pose_wrist, pose_elbow)))
+    gap = float(np.linalg.norm(np.subtract(hand_wrist, pose_wrist)))
+    return bool(np.isfinite(gap)) and gap <= reach * forearm
+
+
 class MediaPipeWholeBody:
     """Whole-body keypoints of one person per frame from MediaPipe's ONNX models in ``cache``.
 
@@ -140,9 +159,11 @@ class MediaPipeWholeBody:
         self.anchors = {m["name"]: mp.ssd_anchors(m["size"], m["strides"])
                         for m in (POSE_DET, FACE_DET)}
         self.prev_roi: mp.Roi | None = None
+        self.prev_hands: dict[str, np.ndarray] = {}  # side -> last frame's 21 hand points
 
     def reset(self) -> None:
         self.prev_roi = None
+        self.prev_hands = {}
 
     def _run(self, model: dict, image: np.ndarray, roi: mp.Roi) -> tuple[list, mp.Roi]:
         """Crop ``roi`` (letterboxed to the input's aspect) and run ``model``; returns the
@@ -201,7 +222,16 @@ class MediaPipeWholeBody:
                              (size, size))
         tight = mp.transform_roi(mp.alignment_roi(p[0], p[1], -np.pi / 2), 1.0, 1.0,
                                  shift_y=-0.1)
-        outs, roi = self._run(HAND_LMK, image, tight)
+        return self.hand_in(image, tight)
+
+    def tracked_hand(self, image: np.ndarray, last: np.ndarray) -> tuple[HandResult, mp.Roi]:
+        """One hand's landmarks in the ROI of the last frame's 21 points ``last``."""
+        roi = mp.transform_roi(mp.hand_landmarks_roi(last), 2.0, 2.0, shift_y=-0.1)
+        return self.hand_in(image, roi)
+
+    def hand_in(self, image: np.ndarray, roi: mp.Roi) -> tuple[HandResult, mp.Roi]:
+        """The hand landmark model in ``roi``: 21 points, presence, handedness."""
+        outs, roi = self._run(HAND_LMK, image, roi)
         size = HAND_LMK["size"]
         pts = mp.crop_to_image(outs[0].reshape(21, 3)[:, :2].astype(np.float64), roi,
                                (size, size))
@@ -260,21 +290,45 @@ class MediaPipeWholeBody:
                 result = self._pose_in(image, start, dbg)
         if result is None:
             self.prev_roi = None
+            self.prev_hands = {}
             return None, dbg
         if s.hands:
             for side, (w, p, i) in POSE_HAND_POINTS.items():
-                if result.pose_visibility[w] < s.min_wrist_visibility:
-                    result.hands[side] = None
-                    continue
-                hand, roi = self.hand(image, result.pose[w], result.pose[p], result.pose[i])
-                dbg.hand_rois[side] = roi
-                result.hands[side] = hand if hand.presence >= s.min_hand_presence else None
+                result.hands[side] = self._hand_of(image, result, side, (w, p, i), dbg)
+                if result.hands[side] is None:
+                    self.prev_hands.pop(side, None)
+                else:
+                    self.prev_hands[side] = result.hands[side].points
         if s.face:
             pts, presence, roi = self.face(image, result.pose[list(POSE_FACE_POINTS)])
             dbg.face_roi = roi
             if pts is not None and presence >= s.min_face_presence:
                 result.face, result.face_presence = pts, presence
         return result, dbg
+
+    def _hand_of(self, image, result: WholeBodyResult, side: str, points: tuple[int, int, int],
+                 dbg: FrameDebug) -> HandResult | None:
+        """The ``side`` hand of the pose ``result``: from the pose's region, else tracked."""
+        s = self.spec
+        w, p, i = points
+        vis = float(result.pose_visibility[w])
+        if vis < s.min_wrist_visibility:
+            return None
+        hand, dbg.hand_rois[side] = self.hand(image, result.pose[w], result.pose[p],
+                                              result.pose[i])
+        if hand.presence >= s.min_hand_presence:
+            return hand
+        last = self.prev_hands.get(side)
+        if not (s.track and s.hand_track_reach > 0 and last is not None):
+            return None
+        hand, roi = self.tracked_hand(image, last)
+        if hand.presence < s.min_hand_presence or not tracked_hand_kept(
+                hand.points[0], result.pose[w], result.pose[POSE_ELBOW[side]], vis,
+                s.hand_track_reach, s.hand_track_trust):
+            return None
+        dbg.hand_rois[side] = roi
+        dbg.hands_tracked.add(side)
+        return hand
 
     def _pose_in(self, image, roi: mp.Roi, dbg: FrameDebug) -> WholeBodyResult | None:
         out = self.pose(image, roi)

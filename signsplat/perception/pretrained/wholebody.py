@@ -56,6 +56,8 @@ POSE_TO_COCO_FEET = tuple(
 POSE_HAND_POINTS = {side: tuple(BLAZEPOSE_NAMES.index(f"{side}_{p}")
                                 for p in ("wrist", "pinky", "index"))
                     for side in ("left", "right")}
+# BlazePose's elbow per side (a forearm's length measures how far a tracked hand may be).
+POSE_ELBOW = {side: BLAZEPOSE_NAMES.index(f"{side}_elbow") for side in ("left", "right")}
 # BlazePose's face points (nose .. mouth corners), from which the face's region comes.
 POSE_FACE_POINTS = tuple(range(BLAZEPOSE_NAMES.index("mouth_right") + 1))
 POSE_LEFT_EYE = BLAZEPOSE_NAMES.index("left_eye")
