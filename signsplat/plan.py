@@ -44,6 +44,8 @@ class Plan:
     ablation_scene: str | None = None
     sweep_scene: str | None = None
     quality_scene: str | None = None
+    #: where the config came from, for error messages
+    source: str = "config/config.yaml"
 
     @property
     def scenes(self) -> dict[str, dict]:
@@ -122,18 +124,19 @@ class Plan:
         if scene is None:
             return self.default_scene
         if scene not in self.sequences:
-            raise ConfigError(f"config/config.yaml: {key}.scene = {scene!r} is not a sequence "
+            raise ConfigError(f"{self.source}: {key}.scene = {scene!r} is not a sequence "
                               f"of this run; allowed: {sorted(self.sequences)}")
         return scene
 
 
-def plan(config: dict, user_config: dict | None = None, root: str = ".") -> Plan:
+def plan(config: dict, user_config: dict | None = None, root: str = ".",
+         source: str = "config/config.yaml") -> Plan:
     """The plan of a run. ``config``: the validated workflow config (defaults filled);
     ``user_config``: the config as the user gave it, whose ``avatar`` section the profiles
-    apply under (default: ``config``'s)."""
+    apply under (default: ``config``'s); ``source``: the config's files, named in errors."""
     user_avatar: dict[str, Any] = (user_config if user_config is not None else config).get(
         "avatar", {})
-    p = Plan(load_sequences(config, root))
+    p = Plan(load_sequences(config, root), source=source)
     for name, over in PROFILE_VARIANTS.items():
         p.add_variant(name, over, user_avatar)
     p.ablation_scene = p.study_scene(config, "ablations")

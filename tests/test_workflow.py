@@ -214,6 +214,9 @@ def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path)
     assert res.returncode != 0
     out = res.stdout + res.stderr
     assert "ablations.scene" in out and "'nowhere'" in out and "['tiny', 'tiny1']" in out
+    # the error names the files the config came from
+    line = next(x for x in out.splitlines() if "ablations.scene = 'nowhere'" in x)
+    assert str(bad) in line and "config/config.yaml" in line, line
 
 
 @pytest.mark.slow

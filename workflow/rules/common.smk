@@ -12,7 +12,9 @@ from signsplat.plan import plan
 # in: a section with named profiles (avatar) puts the profile under the user's own values
 # only, not under defaults that would hide it.
 USER_CONFIG = copy.deepcopy(config)
-validate(config, "config.schema.yaml", "config/config.yaml")
+# The config's files (config/config.yaml and any --configfile), named in config errors.
+CONFIG_FILES = " + ".join(map(str, workflow.configfiles)) or "config/config.yaml"
+validate(config, "config.schema.yaml", CONFIG_FILES)
 
 PY = sys.executable
 RESULTS = config["results"]
@@ -20,7 +22,7 @@ RESULTS = config["results"]
 # rule's own threads (the one place a thread count is set; a profile's set-threads changes it).
 DEVICE = config["device"]
 # What this run does (signsplat.plan): sequences, the default scene, avatar variants.
-PLAN = plan(config, USER_CONFIG)
+PLAN = plan(config, USER_CONFIG, source=CONFIG_FILES)
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)
 SCENES = PLAN.scenes  # synthetic sequences: name -> validated scene spec
 VIDEOS = PLAN.videos  # footage: name -> sheet row
