@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from workflow_runs import snakemake as run_snakemake
 from workflow_runs import tiny_local_run
 
 from signsplat.io.atomic import is_temporary
@@ -27,8 +28,7 @@ pytestmark = pytest.mark.slow
 
 
 def snakemake(*args, timeout=900, **kw):
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "--nolock", *args]
-    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, **kw)
+    return run_snakemake("--cores", "2", *args, timeout=timeout, **kw)
 
 
 @pytest.fixture(scope="module")

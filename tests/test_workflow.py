@@ -2,8 +2,6 @@
 
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +9,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from workflow_runs import snakemake as run_snakemake
 from workflow_runs import tiny_config, tiny_local_run
 
 from signsplat.avatar.config import resolve
@@ -20,8 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def snakemake(*args, timeout=900):
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "1", "--nolock", *args]
-    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    return run_snakemake("--cores", "1", *args, timeout=timeout)
 
 
 def job_counts(stdout: str) -> dict[str, int]:

@@ -9,7 +9,9 @@ import subprocess
 
 import pytest
 
-from .slurm_helpers import SCRIPT, USERS, alive, locked
+from workflow_runs import locked
+
+from .slurm_helpers import SCRIPT, USERS, alive
 
 REQUIRED = os.environ.get("SIGNSPLAT_REQUIRE_CLUSTER") == "1"
 

@@ -1,14 +1,13 @@
 """Helpers of the cluster tests (tests/cluster): the local SLURM cluster's script and
 names, Snakemake runs with the shipped slurm profile, the fault hook's environment, and what a
-Snakemake log says about its jobs. The two tiny sequences' config and the run-once machinery
-are shared with the other workflow tests (tests/workflow_runs.py)."""
+Snakemake log says about its jobs. The two tiny sequences' config, Snakemake runs and the
+run-once machinery are shared with the other workflow tests (tests/workflow_runs.py)."""
 
 import os
 import re
 from pathlib import Path
 
 import yaml
-from workflow_runs import locked, shared_once, snakemake, tiny_config  # noqa: F401 (re-exported)
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "workflow" / "cluster" / "local-slurm.sh"

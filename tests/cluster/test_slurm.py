@@ -23,10 +23,9 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
-from workflow_runs import tiny_local_run
+from workflow_runs import shared_once, snakemake, tiny_config, tiny_local_run
 
-from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, shared_once,
-                            slurm_args, snakemake, tiny_config)
+from .slurm_helpers import ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 

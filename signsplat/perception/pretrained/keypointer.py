@@ -293,8 +293,8 @@ class MediaPipeWholeBody:
             self.prev_hands = {}
             return None, dbg
         if s.hands:
-            for side, (w, p, i) in POSE_HAND_POINTS.items():
-                result.hands[side] = self._hand_of(image, result, side, (w, p, i), dbg)
+            for side in POSE_HAND_POINTS:
+                result.hands[side] = self._hand_of(image, result, side, dbg)
                 if result.hands[side] is None:
                     self.prev_hands.pop(side, None)
                 else:
@@ -306,11 +306,11 @@ class MediaPipeWholeBody:
                 result.face, result.face_presence = pts, presence
         return result, dbg
 
-    def _hand_of(self, image, result: WholeBodyResult, side: str, points: tuple[int, int, int],
+    def _hand_of(self, image, result: WholeBodyResult, side: str,
                  dbg: FrameDebug) -> HandResult | None:
         """The ``side`` hand of the pose ``result``: from the pose's region, else tracked."""
         s = self.spec
-        w, p, i = points
+        w, p, i = POSE_HAND_POINTS[side]
         vis = float(result.pose_visibility[w])
         if vis < s.min_wrist_visibility:
             return None
