@@ -17,7 +17,9 @@ from typing import Any
 from signsplat.avatar.config import EVAL_ONLY_KEYS
 from signsplat.avatar.config import resolve as resolve_avatar
 from signsplat.config import ConfigError, deep_merge, load_sequences
-from signsplat.fit.mode import fit_mode
+from signsplat.fit.mode import fit_mode, mode_config
+from signsplat.fit.sweep import AXES as FIT_SWEEP_AXES
+from signsplat.fit.sweep import FitPoint, sweep_points
 from signsplat.report.variants import (ablation_plan, regularizer_plan, sweep_plan,
                                        sweep_values)
 
@@ -41,6 +43,10 @@ class Plan:
     regularizer: list[dict] = field(default_factory=list)
     #: sweep variant -> the values shown beside its scores
     sweep: dict[str, dict] = field(default_factory=dict)
+    #: the fit's sweep: point name -> :class:`~signsplat.fit.sweep.FitPoint` (``default`` is
+    #: the config's own fit); empty when no multi-view sequence is there to sweep
+    fit_sweep: dict[str, FitPoint] = field(default_factory=dict)
+    fit_sweep_scene: str | None = None
     ablation_scene: str | None = None
     sweep_scene: str | None = None
     quality_scene: str | None = None
@@ -74,6 +80,15 @@ class Plan:
     def fit_mode(self, sequence: str, fit_config: dict) -> str:
         """``multiview`` or ``singleview`` (:func:`signsplat.fit.mode.fit_mode`)."""
         return fit_mode(fit_config, self.num_views(sequence))
+
+    @property
+    def fit_sweep_values(self) -> dict[str, dict]:
+        """Fit sweep point -> ``{"swept": axis, <each axis>: value}`` (its table's columns)."""
+        return {n: {"swept": pt.axis, **pt.values} for n, pt in self.fit_sweep.items()}
+
+    def fit_sweep_config(self, point: str) -> dict:
+        """A fit sweep point's ``fit`` section for the sweep's sequence (its mode only)."""
+        return mode_config(self.fit_sweep[point].fit, self.num_views(self.fit_sweep_scene))
 
     def smplx_source(self, variant: str, sequence: str) -> str:
         """Where a variant's SMPL-X and cameras come from on a sequence: ``fitted`` (the fit
@@ -144,6 +159,7 @@ def plan(config: dict, user_config: dict | None = None, root: str = ".",
     p.quality_scene = p.study_scene(config, "quality")
 
     _plan_ablations(p, config["ablations"], user_avatar)
+    _plan_fit_sweep(p, config)
 
     native = (p.scenes[p.sweep_scene]["cameras"]["width"] if p.sweep_scene in p.scenes else 0)
     axes = {k: config["sweep"][k] for k in ("iterations", "resolution", "max_points")}
@@ -153,6 +169,25 @@ def plan(config: dict, user_config: dict | None = None, root: str = ".",
     # the `make demo` configuration is always a point of the sweep (starred on the plot)
     p.sweep.setdefault("demo", {"swept": "demo", **sweep_values(p.variants["demo"], native)})
     return p
+
+
+def _plan_fit_sweep(p: Plan, config: dict) -> None:
+    """The fit sweep's sequence (a multi-view one) and its points."""
+    cfg = config["fit_sweep"]
+    scene = cfg["scene"]
+    if scene is None:
+        scene = (p.multiview_scenes or [None])[0]
+    else:
+        allowed = [n for n in p.sequences if p.num_views(n) > 1]
+        if scene not in allowed:
+            raise ConfigError(f"{p.source}: fit_sweep.scene = {scene!r} is not a multi-view "
+                              f"sequence of this run (the swept stages are the multi-view "
+                              f"fit's); allowed: {allowed}")
+    if scene is None or config["fit"]["mode"] == "singleview":
+        return
+    p.fit_sweep_scene = scene
+    axes = {axis: cfg[axis] for axis in FIT_SWEEP_AXES}
+    p.fit_sweep = {pt.name: pt for pt in sweep_points(config["fit"], axes, p.source)}
 
 
 def _plan_ablations(p: Plan, cfg: dict, user_avatar: dict) -> None:

@@ -10,6 +10,9 @@
   --plot R/S/regularizer.png``
 - ``signsplat report sweep --results R --scene S --settings-json '{"sw_it150": {...}}'
   --out R/S/sweep.parquet --plot R/S/sweep.png --demo demo``
+- ``signsplat report fit-sweep --results R --scene S --points-json '{"default": {...},
+  "sil250": {"swept": "silhouette_iterations", ...}}' --out R/S/fit_sweep.parquet
+  --plot R/S/fit_sweep.png``
 """
 
 from __future__ import annotations
@@ -111,9 +114,21 @@ def _sweep(argv: list[str]) -> int:
     return 0
 
 
+def _fit_sweep(argv: list[str]) -> int:
+    from signsplat.report.fit_sweep import fit_sweep_plot, fit_sweep_table
+
+    a = _study_args(argv, "fit-sweep", "--points-json",
+                    '{"sil250": {"swept": "silhouette_iterations", "silhouette_iterations": '
+                    '250, "flow": "medium", "lm_iterations": 60}, ...}', True)
+    df = fit_sweep_table(Path(a.results), a.scene, json.loads(a.points_json))
+    _write(df, a, "fit_sweep")
+    fit_sweep_plot(df, Path(a.plot), title=a.scene)
+    return 0
+
+
 def report(argv: list[str]) -> int:
     commands = {"html": _html, "ablations": _ablations, "regularizer": _regularizer,
-                "sweep": _sweep}
+                "sweep": _sweep, "fit-sweep": _fit_sweep}
     if argv and argv[0] in commands:
         return commands[argv[0]](argv[1:])
     return _html(argv)

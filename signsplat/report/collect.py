@@ -8,9 +8,9 @@ Layout read (see README, "The workflow"): ``{results}/{scene}/sim/``, ``percepti
 and ``*_timings.parquet``, ``fit/fit_eval.parquet`` and ``fit/overlays/*.png``,
 ``colmap/colmap_compare.parquet``, ``avatar/{variant}/train_log.parquet``,
 ``eval/{variant}/metrics.parquet`` and ``eval/{variant}/images/*.png``,
-``{scene}/ablations.parquet``, ``{scene}/sweep.parquet``, stitching outputs
-(``stitch_eval.parquet``, ``*.mp4``) anywhere below ``results``, and the Snakemake benchmark
-files ``_benchmarks/**/*.tsv``.
+``{scene}/ablations.parquet``, ``{scene}/sweep.parquet``, ``{scene}/fit_sweep.parquet``,
+stitching outputs (``stitch_eval.parquet``, ``*.mp4``) anywhere below ``results``, and the
+Snakemake benchmark files ``_benchmarks/**/*.tsv``.
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ class SceneTables:
     ablations: pd.DataFrame | None = None
     regularizer: pd.DataFrame | None = None
     sweep: pd.DataFrame | None = None
+    fit_sweep: pd.DataFrame | None = None
     footage_quality: pd.DataFrame | None = None  # footage: detection rates, jitter
     footage_overlays: list[Path] = field(default_factory=list)  # mask + keypoints on frames
     persons: pd.DataFrame | None = None  # who the person detector saw, who was taken
@@ -131,6 +132,7 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
     t.ablations = read_parquet(scene_dir / "ablations.parquet")
     t.regularizer = read_parquet(scene_dir / "regularizer.parquet")
     t.sweep = read_parquet(scene_dir / "sweep.parquet")
+    t.fit_sweep = read_parquet(scene_dir / "fit_sweep.parquet")
     return t
 
 

@@ -69,6 +69,15 @@ _METRICS = {  # fit_eval (metric, part) -> column
 }
 
 
+def fit_errors(ev: pd.DataFrame) -> dict[str, float]:
+    """The error columns of a fit's ``fit_eval`` table (NaN where it has no such row)."""
+    out = {}
+    for (m, p), col in _METRICS.items():
+        sel = ev[(ev["metric"] == m) & (ev["part"] == p)]["value"]
+        out[col] = float(sel.iloc[0]) if len(sel) else float("nan")
+    return out
+
+
 def _rig_summary(spec: dict) -> dict:
     cams = spec["cameras"]
     if cams.get("views"):
@@ -118,11 +127,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
         row["status"] = f"no fit output{': ' + last if last else ''}"
         row["meets_target"] = False
         return row
-    ev = pd.read_parquet(ev_path)
-    for (m, p), col in _METRICS.items():
-        sel = ev[(ev["metric"] == m) & (ev["part"] == p)]["value"]
-        if len(sel):
-            row[col] = float(sel.iloc[0])
+    row.update(fit_errors(pd.read_parquet(ev_path)))
     summary = json.loads(log_path.read_text())
     status = list(summary.get("camera_status", []))
     row["camera_init"] = str(summary.get("log", {}).get("camera_init", ""))

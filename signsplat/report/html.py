@@ -26,6 +26,7 @@ from signsplat.io.images import read_rgb, write_png
 from signsplat.report import accounting, plots, runs
 from signsplat.report.collect import Results, bench_seconds, collect
 from signsplat.report.fit_suite import fit_suite_section
+from signsplat.report.fit_sweep import fit_sweep_section
 
 
 @dataclass
@@ -579,8 +580,9 @@ def build_sections(res: Results, report_dir: Path, demo: str = "demo",
     assets = Assets(report_dir)
     footage = [footage_section(res, assets)] if any(
         t.footage_quality is not None for t in res.scenes.values()) else []
+    fit_sweep = fit_sweep_section({n: t.fit_sweep for n, t in res.scenes.items()}, assets)
     sections = [scene_section(res, assets), perception_section(res), *footage,
-                fit_section(res, assets),
+                fit_section(res, assets), *([fit_sweep] if fit_sweep is not None else []),
                 colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
                 sweep_section(res, assets, demo), stitch_section(res, assets),
                 runtime_section(res, assets, benchmark_patterns)]

@@ -16,18 +16,25 @@ import pandas as pd  # noqa: E402
 from signsplat.io.atomic import atomic_path  # noqa: E402
 
 
-def pareto_front(seconds, quality) -> np.ndarray:
-    """Bool mask of the points no other point beats: another point dominates a point when it
-    takes no more seconds, has no lower quality, and is strictly better in one of the two.
-    NaN points are never on the front."""
-    s = np.asarray(seconds, dtype=float)
-    q = np.asarray(quality, dtype=float)
-    ok = np.isfinite(s) & np.isfinite(q)
-    front = np.zeros(len(s), dtype=bool)
+def nondominated(costs) -> np.ndarray:
+    """Bool mask of the rows of ``costs`` (points x criteria, lower is better in each) that no
+    other row dominates: no worse in every criterion and strictly better in one. Rows with a
+    NaN are never on the front."""
+    c = np.atleast_2d(np.asarray(costs, dtype=float))
+    ok = np.isfinite(c).all(axis=1)
+    front = np.zeros(len(c), dtype=bool)
     for i in np.flatnonzero(ok):
-        better = ok & (s <= s[i]) & (q >= q[i]) & ((s < s[i]) | (q > q[i]))
+        better = ok & (c <= c[i]).all(axis=1) & (c < c[i]).any(axis=1)
         front[i] = not better.any()
     return front
+
+
+def pareto_front(seconds, quality, lower_is_better: bool = False) -> np.ndarray:
+    """Bool mask of the points no other point beats in (seconds, quality): another point
+    dominates a point when it takes no more seconds, has no worse quality, and is strictly
+    better in one of the two. NaN points are never on the front."""
+    q = np.asarray(quality, dtype=float)
+    return nondominated(np.c_[np.asarray(seconds, dtype=float), q if lower_is_better else -q])
 
 
 def _save(fig, path: Path) -> Path:
@@ -42,9 +49,13 @@ def _save(fig, path: Path) -> Path:
 def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
                      seconds="seconds", label="setting", highlight: str | None = None,
                      title: str = "",
-                     xlabel: str = "training wall-clock seconds (Snakemake benchmark)") -> Path:
+                     xlabel: str = "training wall-clock seconds (Snakemake benchmark)",
+                     lower_is_better: tuple[str, ...] = (),
+                     highlight_label: str = "make demo",
+                     ylabels: dict[str, str] | None = None) -> Path:
     """One panel per metric: quality against wall-clock seconds (log x), the Pareto front as a
-    line, the ``highlight`` setting (the demo configuration) as a star."""
+    line, the ``highlight`` setting (the demo configuration) as a star. Metrics named in
+    ``lower_is_better`` are errors: their front is the lower envelope."""
     metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
     if "smplx_source" in df.columns and df["smplx_source"].nunique() > 1:
         # settings trained on another SMPL-X source than most are not like for like: say so
@@ -60,7 +71,7 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
                              squeeze=False)
     for ax, m in zip(axes[0], metrics):
         d = df[[seconds, m, label]].dropna(subset=[seconds, m])
-        front = pareto_front(d[seconds], d[m])
+        front = pareto_front(d[seconds], d[m], m in lower_is_better)
         ax.scatter(d[seconds], d[m], c="0.55", s=28, label="setting", zorder=2)
         f = d[front].sort_values(seconds)
         ax.step(f[seconds], f[m], where="post", color="tab:red", lw=1.5, zorder=3)
@@ -71,14 +82,14 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
         if highlight is not None and (d[label] == highlight).any():
             h = d[d[label] == highlight]
             ax.scatter(h[seconds], h[m], marker="*", s=260, facecolor="gold",
-                       edgecolor="black", label=f"make demo: {highlight}", zorder=5)
+                       edgecolor="black", label=f"{highlight_label}: {highlight}", zorder=5)
         if (d[seconds] > 0).all() and len(d) > 1:
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # no overlapping 2x10^2...
             ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
         ax.margins(x=0.25)  # room for the labels of the outermost points
         ax.set_xlabel(xlabel)
-        ax.set_ylabel(m.upper())
+        ax.set_ylabel((ylabels or {}).get(m, m.upper()))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
     if not metrics:

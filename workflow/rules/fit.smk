@@ -71,6 +71,7 @@ rule fit_smplx:
         betas=config["body_model"]["num_betas"],
         expr=config["body_model"]["num_expression"],
         device=config.get("device", "auto"),
+        out=f"{RESULTS}/{{scene}}/fit",
     log:
         f"{RESULTS}/_logs/{{scene}}/fit_smplx.log",
     benchmark:
@@ -85,5 +86,27 @@ rule fit_smplx:
         " --masks {input.masks:q}"
         " --num-betas {params.betas}"
         " --num-expression {params.expr} --device {params.device} --threads {threads}"
-        " --out-dir {RESULTS}/{wildcards.scene}/fit {params.extra} > {log} 2>&1"
+        " --out-dir {params.out:q} {params.extra} > {log} 2>&1"
 
+
+
+# `snakemake fit_sweep`: the fit of the sweep's sequence with one costly setting changed
+# (signsplat.plan, PLAN.fit_sweep); the point `default` is fit_smplx's own result.
+wildcard_constraints:
+    point="|".join(PLAN.fit_sweep) or "^$",
+
+
+use rule fit_smplx as fit_sweep_point with:
+    output:
+        smplx=f"{RESULTS}/{{scene}}/fit_sweep/{{point}}/smplx_fit.parquet",
+        cameras=f"{RESULTS}/{{scene}}/fit_sweep/{{point}}/cameras_fit.parquet",
+        eval=f"{RESULTS}/{{scene}}/fit_sweep/{{point}}/fit_eval.parquet",
+        log_json=f"{RESULTS}/{{scene}}/fit_sweep/{{point}}/fit_log.json",
+        overlays=directory(f"{RESULTS}/{{scene}}/fit_sweep/{{point}}/overlays"),
+    params:
+        cfg=lambda wildcards: as_json(PLAN.fit_sweep_config(wildcards.point)),
+        out=f"{RESULTS}/{{scene}}/fit_sweep/{{point}}",
+    log:
+        f"{RESULTS}/_logs/{{scene}}/fit_sweep_{{point}}.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/fit_sweep_{{point}}.tsv"

@@ -3,9 +3,11 @@
 # other stages put in `all`. Also the two study targets (not part of `all`):
 #   snakemake ablations   -> {results}/{scene}/ablations.parquet (paper Table 5)
 #   snakemake sweep       -> {results}/{scene}/sweep.parquet + sweep.png (accuracy vs time)
+#   snakemake fit_sweep   -> {results}/{scene}/fit_sweep.parquet + fit_sweep.png (the fit's)
 # Their variants are planned by signsplat.plan (PLAN.ablations, PLAN.sweep); seconds come from
 # the train_avatar / evaluate_avatar benchmark files. No science here.
 
+from signsplat.report.fit_sweep import point_files
 from signsplat.report.variants import ablation_columns
 
 REPORT_HTML = config["report"]["html"]
@@ -93,6 +95,42 @@ rule sweep_table:
         " --tsv {output.tsv:q} --demo demo > {log} 2>&1"
 
 
+def fit_sweep_evals(wildcards):
+    return [f"{RESULTS}/{wildcards.scene}/{point_files(p)[0]}/fit_eval.parquet"
+            for p in PLAN.fit_sweep]
+
+
+rule fit_sweep_table:
+    input:
+        fit_sweep_evals,
+    output:
+        table=f"{RESULTS}/{{scene}}/fit_sweep.parquet",
+        tsv=report(f"{RESULTS}/{{scene}}/fit_sweep.tsv", caption="../report/fit_sweep.rst",
+                   category="3. Fit"),
+        plot=report(f"{RESULTS}/{{scene}}/fit_sweep.png", caption="../report/fit_sweep.rst",
+                    category="3. Fit"),
+    params:
+        points=as_json(PLAN.fit_sweep_values),
+    log:
+        f"{RESULTS}/_logs/{{scene}}/fit_sweep_table.log",
+    benchmark:
+        f"{RESULTS}/_benchmarks/{{scene}}/fit_sweep_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    shell:
+        "{PY} -m signsplat report fit-sweep --results {RESULTS} --scene {wildcards.scene}"
+        " --points-json {params.points:q} --out {output.table:q} --plot {output.plot:q}"
+        " --tsv {output.tsv:q} > {log} 2>&1"
+
+
+rule fit_sweep:
+    localrule: True
+    input:
+        expand(rules.fit_sweep_table.output, scene=PLAN.fit_sweep_scene or []),
+
+
 rule ablations:
     localrule: True
     input:
@@ -109,11 +147,12 @@ rule sweep:
 
 def report_inputs(wildcards):
     """Everything in `all`, plus the study tables and the quality avatar once they exist: a
-    later run of `all` after `snakemake ablations`, `sweep` or `quality` rewrites the report
+    later run of `all` after `snakemake ablations`, `sweep`, `fit_sweep` or `quality` rewrites the report
     with them."""
     study = expand(rules.ablation_table.output.table, scene=PLAN.ablation_scene)
     study += expand(rules.regularizer_table.output.table, scene=PLAN.ablation_scene)
     study += expand(rules.sweep_table.output.table, scene=PLAN.sweep_scene)
+    study += expand(rules.fit_sweep_table.output.table, scene=PLAN.fit_sweep_scene or [])
     study += QUALITY_OUTPUTS
     return final_outputs(report=False) + [f for f in study if os.path.exists(f)]
 
