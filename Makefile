@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 JOBS    ?= 2
 
-.PHONY: demo test install chromium slurm-packages bench-rasterizer clean-results ablations sweep quality snakemake-report models models-for-tests footage
+.PHONY: demo test install chromium slurm-packages bench-rasterizer clean-results ablations sweep fit-sweep quality snakemake-report models models-for-tests footage
 
 $(BIN)/python:
 	@command -v $(PY) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PY=/path/to/python3.11)"; exit 1; }
@@ -102,6 +102,10 @@ ablations: $(STAMP)
 
 sweep: $(STAMP)
 	$(BIN)/snakemake --cores $(JOBS) sweep
+	$(BIN)/snakemake --cores $(JOBS)
+
+fit-sweep: $(STAMP)
+	$(BIN)/snakemake --cores $(JOBS) fit_sweep
 	$(BIN)/snakemake --cores $(JOBS)
 
 # The avatar's quality profile (longer than the demo: docs/avatar.md), then the report with it.

@@ -113,3 +113,25 @@ def test_a_study_on_an_unknown_sequence_names_the_key_and_the_choices(tmp_path):
                                          "resolution": [], "max_points": []})
     with pytest.raises(ConfigError, match=r"sweep.scene = 'nowhere'.*\['single', 'studio6'\]"):
         plan(cfg, user, root=ROOT)
+
+
+def test_the_fit_sweep_runs_on_a_multi_view_sequence_with_its_own_mode_config(tmp_path):
+    cfg, user = _config(tmp_path)
+    p = plan(cfg, user, root=ROOT)
+    assert p.fit_sweep_scene == "studio6"
+    assert "default" in p.fit_sweep and len(p.fit_sweep) > 1
+    assert p.fit_sweep["default"].fit == cfg["fit"]
+    point = next(n for n in p.fit_sweep if n != "default")
+    section = p.fit_sweep_config(point)
+    assert "singleview" not in section and section["multiview"] == \
+        p.fit_sweep[point].fit["multiview"]
+    assert p.fit_sweep_values[point]["swept"] == p.fit_sweep[point].axis
+    # a single-camera sequence named for it: the key, the value and the allowed ones
+    cfg, user = _config(tmp_path, fit_sweep={"scene": "single"})
+    with pytest.raises(ConfigError, match=r"fit_sweep.scene = 'single'.*allowed: \['studio6'\]"):
+        plan(cfg, user, root=ROOT)
+    # no multi-view sequence, or the single-view fit forced: nothing to sweep, no error
+    cfg, user = _config(tmp_path, [("solo", "synthetic", "config/scenes/single.yaml", "")])
+    assert plan(cfg, user, root=ROOT).fit_sweep == {}
+    cfg, user = _config(tmp_path, fit={"mode": "singleview"})
+    assert plan(cfg, user, root=ROOT).fit_sweep == {}

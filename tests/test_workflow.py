@@ -200,6 +200,28 @@ def test_dry_run_of_the_sweep_target_plans_the_default_settings(tmp_path):
     assert f"{tmp_path}/studio6/sweep.png" in res.stdout
 
 
+def test_dry_run_of_the_fit_sweep_plans_one_fit_per_changed_setting(tmp_path):
+    """`snakemake fit_sweep`: the config's own fit (fit_smplx) and one fit_sweep_point per
+    value of config fit_sweep that differs from it, each with its stages, then the table."""
+    from signsplat.config import validate
+    from signsplat.fit.sweep import AXES, axis_values, point_name
+
+    res = snakemake("-n", "-p", "fit_sweep", "--config", f"results={tmp_path}")
+    assert res.returncode == 0, res.stderr + res.stdout
+    axes = validate({}, "config.schema.yaml")["fit_sweep"]
+    centre = axis_values(validate({}, "stages/fit.schema.yaml"))
+    expected = {point_name(a, v) for a in AXES for v in axes[a] if v != centre[a]}
+    jobs = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_sweep_point:")]
+    planned = {re.search(r"point=([A-Za-z0-9_]+)", j).group(1): j for j in jobs}
+    assert set(planned) == expected and len(expected) >= 4
+    counts = job_counts(res.stdout)
+    assert counts["fit_smplx"] == 1 and counts["fit_sweep_table"] == 1
+    if "sil0" in planned:  # the keypoint stages only: no silhouette stage in its config
+        assert '"name": "silhouette"' not in planned["sil0"]
+        assert '"name": "silhouette"' in next(j for n, j in planned.items() if n != "sil0")
+    assert f"{tmp_path}/studio6/fit_sweep.png" in res.stdout
+
+
 def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path):
     cfg = tiny_study_config(tmp_path)
     res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))
