@@ -4,6 +4,7 @@
 # keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette stage) come from the
 # same source. The frames table's images feed the overlays and the optical-flow term.
 from signsplat.fit.mode import mode_config
+from signsplat.fit.sweep import DEFAULT_POINT
 
 FIT_CFG = config["fit"]  # validated in common.smk: the schema filled the defaults
 
@@ -89,11 +90,10 @@ rule fit_smplx:
         " --out-dir {params.out:q} {params.extra} > {log} 2>&1"
 
 
-
 # `snakemake fit_sweep`: the fit of the sweep's sequence with one costly setting changed
 # (signsplat.plan, PLAN.fit_sweep); the point `default` is fit_smplx's own result.
 wildcard_constraints:
-    point="|".join(PLAN.fit_sweep) or "^$",
+    point="|".join(p for p in PLAN.fit_sweep if p != DEFAULT_POINT) or "^$",
 
 
 use rule fit_smplx as fit_sweep_point with:
