@@ -1,11 +1,12 @@
 # The HTML report (config report.html, default reports/index.html) over every stage's outputs;
 # stages that did not run get a section saying so. Included last: it asks for everything the
-# other stages put in `all`. Also the two study targets (not part of `all`):
+# other stages put in `all`. Also the three study targets (not part of `all`):
 #   snakemake ablations   -> {results}/{scene}/ablations.parquet (paper Table 5)
 #   snakemake sweep       -> {results}/{scene}/sweep.parquet + sweep.png (accuracy vs time)
 #   snakemake fit_sweep   -> {results}/{scene}/fit_sweep.parquet + fit_sweep.png (the fit's)
-# Their variants are planned by signsplat.plan (PLAN.ablations, PLAN.sweep); seconds come from
-# the train_avatar / evaluate_avatar benchmark files. No science here.
+# Their variants and fits are planned by signsplat.plan (PLAN.ablations, PLAN.sweep,
+# PLAN.fit_sweep); seconds come from the train_avatar / evaluate_avatar / fit_smplx /
+# fit_sweep_point benchmark files. No science here.
 
 from signsplat.report.fit_sweep import point_files
 from signsplat.report.variants import ablation_columns
