@@ -72,10 +72,12 @@ def project(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Ten
     ``min_depth`` in the division so points behind a camera stay finite (callers mask them).
     """
     xc = torch.einsum("vij,bnj->vbni", R, points) + t[:, None, None, :]
-    z = xc[..., 2]
+    # unbind, not three slices: its backward stacks the gradients instead of filling a zero
+    # tensor of the whole (V,B,N,3) per slice
+    x, y, z = xc.unbind(-1)
     zc = z.clamp_min(min_depth)
-    x = xc[..., 0] / zc
-    y = xc[..., 1] / zc
+    x = x / zc
+    y = y / zc
     u = K[:, 0, 0, None, None] * x + K[:, 0, 1, None, None] * y + K[:, 0, 2, None, None]
     v = K[:, 1, 1, None, None] * y + K[:, 1, 2, None, None]
     return torch.stack([u, v], dim=-1), z

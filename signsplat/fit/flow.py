@@ -221,7 +221,9 @@ def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: t
     pair, vert = matches.pair, matches.vertex
     view = targets.view[pair]
     a, b = batch_positions(frames, targets.a[pair]), batch_positions(frames, targets.b[pair])
-    moved = uv[view, b, vert] - uv[view, a, vert]
+    # one gather for both ends (each gather's backward fills a zero tensor of uv's size)
+    ends = uv[view.repeat(2), torch.cat([b, a]), vert.repeat(2)]
+    moved = ends[:len(vert)] - ends[len(vert):]
     r2 = ((moved - matches.motion) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     P = targets.num_pairs
     per = uv.new_zeros(P).index_add_(0, pair, r2)

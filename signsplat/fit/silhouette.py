@@ -157,6 +157,16 @@ def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t:
         torch.as_tensor(np.concatenate(pts), dtype=verts.dtype, device=dev), frames_np.copy())
 
 
+def _outside_rows(targets: SilhouetteTargets, frames: torch.Tensor) -> torch.Tensor:
+    """The outside-distance maps of every view at ``frames (B,)``, (V*B,1,H,W): the maps
+    themselves, not a copy, when ``frames`` is the whole sequence in order."""
+    V, T = targets.valid.shape
+    if len(frames) == T and bool((frames.cpu() == torch.arange(T)).all()):
+        return targets.outside
+    rows = (torch.arange(V, device=frames.device)[:, None] * T + frames[None]).reshape(-1)
+    return targets.outside[rows.to(targets.outside.device)]
+
+
 def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
                      t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
                      clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05,
@@ -172,17 +182,15 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     """
     V = K.shape[0]
     B = verts.shape[0]
-    T = targets.valid.shape[1]
     H, W = targets.height, targets.width
     uv, z = project(verts, K, R, t) if projected is None else projected  # (V,B,N,2), (V,B,N)
     front = z > near
     valid = targets.valid[:, frames]  # (V,B)
-    rows = (torch.arange(V, device=verts.device)[:, None] * T
-            + frames[None].to(verts.device)).reshape(-1)
-    grid = torch.stack([uv[..., 0] / (W - 1), uv[..., 1] / (H - 1)], -1) * 2 - 1
+    grid = uv / uv.new_tensor([W - 1, H - 1]) * 2 - 1
     grid = torch.nan_to_num(grid, nan=2.0, posinf=2.0, neginf=-2.0).clamp(-2, 2)
-    d = torch.nn.functional.grid_sample(targets.outside[rows], grid.reshape(V * B, 1, -1, 2),
-                                        align_corners=True, padding_mode="border")
+    d = torch.nn.functional.grid_sample(_outside_rows(targets, frames),
+                                        grid.reshape(V * B, 1, -1, 2), align_corners=True,
+                                        padding_mode="border")
     d = d.reshape(V, B, -1)
     in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
         (uv[..., 1] < H - 2)

@@ -16,6 +16,7 @@ from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams
 from signsplat.fit.silhouette import (
     MatchCache,
+    _outside_rows,
     mask_contour,
     silhouette_terms,
     targets_from_masks,
@@ -72,6 +73,21 @@ def test_contour_and_targets():
     assert not empty.valid.any() and all(len(c) == 0 for c in empty.contours)
     with pytest.raises(ValueError, match="views, frames"):
         targets_from_masks(np.zeros((8, 8), bool))
+
+
+def test_outside_maps_of_a_batch_are_its_views_and_frames():
+    """(view, frame) rows of the outside-distance maps, view-major like the projections; the
+    whole sequence in order is the maps themselves (no copy)."""
+    m = np.zeros((2, 3, 16, 16), bool)
+    for v in range(2):
+        for f in range(3):
+            m[v, f, 2 + 3 * f:8 + 3 * f, 2 + 5 * v:8 + 5 * v] = True
+    tg = targets_from_masks(m)
+    whole = _outside_rows(tg, torch.arange(3))
+    assert whole.data_ptr() == tg.outside.data_ptr()
+    some = _outside_rows(tg, torch.tensor([2, 0]))
+    want = torch.stack([tg.outside[v * 3 + f] for v in range(2) for f in (2, 0)])
+    assert torch.equal(some, want) and not torch.equal(some, tg.outside[:4])
 
 
 def _three_view_scene(kpm):
