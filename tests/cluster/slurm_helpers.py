@@ -35,11 +35,22 @@ def slurm_args(logdir: Path) -> list[str]:
             "--slurm-logdir", str(logdir), "--slurm-keep-successful-logs"]
 
 
-def fault_env(spec: str, folder: Path) -> dict:
-    """The environment that arms the fault hook (tests/faults/sitecustomize.py) with ``spec``
-    (``action:stage:match:after``); its markers go to ``folder``."""
+# At most this many seconds between two status checks (tests/faults/sitecustomize.py says why).
+STATUS_CHECK_MAX = 3
+
+
+def slurm_env(**extra: str) -> dict:
+    """The environment of a Snakemake run on the local cluster: the test hooks
+    (tests/faults/sitecustomize.py) on PYTHONPATH, status checks at most STATUS_CHECK_MAX s
+    apart, and ``extra``."""
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(FAULTS)]),
-            "SIGNSPLAT_TEST_FAULT": spec, "SIGNSPLAT_TEST_FAULT_DIR": str(folder)}
+            "SIGNSPLAT_TEST_STATUS_CHECK_MAX": str(STATUS_CHECK_MAX), **extra}
+
+
+def fault_env(spec: str, folder: Path) -> dict:
+    """``slurm_env`` that also arms the fault hook with ``spec`` (``action:stage:match:after``);
+    its markers go to ``folder``."""
+    return slurm_env(SIGNSPLAT_TEST_FAULT=spec, SIGNSPLAT_TEST_FAULT_DIR=str(folder))
 
 
 def _pairs(text: str) -> dict[str, str]:

@@ -25,7 +25,8 @@ from signsplat.report.accounting import query_sacct
 
 from workflow_runs import shared_once, snakemake, tiny_config, tiny_local_run
 
-from .slurm_helpers import ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args
+from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args,
+                            slurm_env)
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -315,7 +316,7 @@ def test_cancelled_job_then_rerun_completes_with_no_partial_files(slurm_run, tmp
         == "CANCELLED"
     # the cancelled job's outputs were removed: nothing partial is left to be mistaken
     assert not (sim / "images").exists() and not [p for p in sim.rglob("*") if is_temporary(p)]
-    res = snakemake(*args)
+    res = snakemake(*args, env=slurm_env())
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     frames = pd.read_parquet(sim / "frames.parquet")
     assert len(frames) == 2 * 4 and all((sim / r).stat().st_size > 0 for r in frames["image"])

@@ -1,4 +1,5 @@
-"""Test-only fault injection for workflow runs (never imported by the library).
+"""Test-only hooks for workflow runs (never imported by the library): fault injection, and
+faster SLURM status checks.
 
 A test puts this folder on PYTHONPATH and sets ``SIGNSPLAT_TEST_FAULT``; Python then imports
 this module at start-up in every process of the run (Snakemake, SLURM job steps, the stage
@@ -22,12 +23,55 @@ on disk:
 
 ``reached`` is JSON: the stage's pid, ``SLURM_JOB_ID`` (when in a SLURM job) and the files
 finished so far.
+
+``SIGNSPLAT_TEST_STATUS_CHECK_MAX=<seconds>`` caps the wait between two status checks of
+snakemake-executor-plugin-slurm. The plugin waits 10 s longer after every check that finds no
+job finished (up to 180 s): right for a cluster of hour-long jobs, but a test's jobs last
+seconds and each would be noticed up to twice its own time late. Only when Snakemake looks
+changes; what runs, and how SLURM runs it, does not.
 """
 
 import os
 import sys
 
 _SPEC = os.environ.get("SIGNSPLAT_TEST_FAULT")
+_STATUS_CHECK_MAX = os.environ.get("SIGNSPLAT_TEST_STATUS_CHECK_MAX")
+SLURM_PLUGIN = "snakemake_executor_plugin_slurm"
+
+
+def cap_status_checks(executor: type, seconds: float) -> None:
+    """Make ``executor``'s wait before its next status check at most ``seconds``."""
+    wait = executor.next_seconds_between_status_checks  # the base class's property
+
+    def capped(self, value):
+        wait.fset(self, value if value is None else min(value, seconds))
+
+    executor.next_seconds_between_status_checks = property(wait.fget, capped)
+
+
+def _cap_when_imported(seconds: float) -> None:
+    """Cap the SLURM plugin's status-check wait as soon as Snakemake imports the plugin."""
+    import importlib.abc
+    import importlib.util
+
+    class Finder(importlib.abc.MetaPathFinder):
+        def find_spec(self, fullname, path, target=None):
+            if fullname != SLURM_PLUGIN:
+                return None
+            sys.meta_path.remove(self)
+            spec = importlib.util.find_spec(fullname)
+            if spec is None or spec.loader is None:
+                return spec
+            load = spec.loader.exec_module
+
+            def exec_module(module):
+                load(module)
+                cap_status_checks(module.Executor, seconds)
+
+            spec.loader.exec_module = exec_module
+            return spec
+
+    sys.meta_path.insert(0, Finder())
 
 
 def _install(spec: str) -> None:
@@ -101,3 +145,5 @@ def _install(spec: str) -> None:
 
 if _SPEC:
     _install(_SPEC)
+if _STATUS_CHECK_MAX:
+    _cap_when_imported(float(_STATUS_CHECK_MAX))
