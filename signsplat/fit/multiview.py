@@ -38,7 +38,7 @@ from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_up_direction,
                                    triangulate)
 from signsplat.fit.flow import flow_targets
-from signsplat.fit.rig_init import PNP_KEYPOINTS, exchange_sides, initial_rig, side_swaps
+from signsplat.fit.rig_init import PNP_KEYPOINTS, exchange_sides, place_cameras, side_swaps
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
@@ -127,16 +127,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                  np.round(init["transl"][0], 3).tolist())
     else:
         kp0 = neutral_keypoints(kpm, dtype, device)
-        hyp = initial_rig(kp0, obs, K, width, height, mv)
-        if mv["repair_sides"]:  # exchanged sides mislead the initialisation too: once more
-            placed = [v for v, st in enumerate(hyp.status)
-                      if st not in ("no_detections", "unplaced")]
-            thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
-            swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs, thr, views=placed)
-            if swaps.sum() > 0.02 * swaps.size:
-                log.info("camera init: left and right exchanged in %d view-frames; placing "
-                         "the cameras again without them", int(swaps.sum()))
-                hyp = initial_rig(kp0, exchange_sides(obs, swaps), K, width, height, mv)
+        hyp = place_cameras(kp0, obs, K, width, height, mv)
         status = hyp.status
         rig0 = Rig(K=np.asarray(K, float), R=hyp.R, t=hyp.t, width=np.asarray(width),
                    height=np.asarray(height))

@@ -971,3 +971,22 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
             status[v] = "unplaced"
     log.info("camera init: winner %r, views %s", winner, status)
     return RigHypotheses(R, t, status, winner, scores, px, rigs)
+
+
+def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
+                  cfg: dict) -> RigHypotheses:
+    """The multi-view fit's camera initialisation: :func:`initial_rig`, and with
+    ``repair_sides`` once more without the view-frames whose left and right the placed
+    cameras show to be exchanged (:func:`side_swaps`), when they are more than 2 % of all.
+    Same arguments as :func:`initial_rig`."""
+    hyp = initial_rig(kp_neutral, obs, K, width, height, cfg)
+    if not cfg["repair_sides"]:
+        return hyp
+    placed = [v for v, st in enumerate(hyp.status) if st not in ("no_detections", "unplaced")]
+    thr = cfg["init"]["threshold"] * float(np.median(np.asarray(height, float)))
+    swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs, thr, views=placed)
+    if swaps.sum() <= 0.02 * swaps.size:
+        return hyp
+    log.info("camera init: left and right exchanged in %d view-frames; placing the cameras "
+             "again without them", int(swaps.sum()))
+    return initial_rig(kp_neutral, exchange_sides(obs, swaps), K, width, height, cfg)
