@@ -52,10 +52,9 @@ def keypoint_sources(det: np.ndarray, truth: np.ndarray, min_score: float, noise
     clean = truth.copy()
     clean[..., 2] = np.where(support, 0.9, 0.0)
     out["truth"] = clean
-    rng = np.random.default_rng(seed)
-    for s in noise:
+    for s in noise:  # the same draw scaled: a level's noise does not depend on the others
         o = clean.copy()
-        o[..., :2] += rng.normal(0.0, s, o[..., :2].shape)
+        o[..., :2] += np.random.default_rng(seed).normal(0.0, s, o[..., :2].shape)
         out[f"truth+{s:g} px"] = o
     w = support[..., None]
     offset = ((det[..., :2] - truth[..., :2]) * w).sum(1, keepdims=True) / \

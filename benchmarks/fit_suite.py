@@ -30,7 +30,7 @@ import yaml
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from signsplat.io.tables import write_table  # noqa: E402
+from signsplat.io.tables import read_table, write_table  # noqa: E402
 from signsplat.report.fit_suite import (plot_suite, scene_row, suite_table,  # noqa: E402
                                         summarise)
 
@@ -75,9 +75,12 @@ def main() -> None:
     rows = [scene_row(results, s, specs[s], a.keypoints) for s in scenes]
     df = suite_table(rows)
     out = REPO / a.out
-    write_table(df, out, "fit_suite", metadata={"keypoints": a.keypoints,
-                                                "wall_seconds": f"{wall:.0f}",
-                                                "results": str(results)})
+    meta = {"keypoints": a.keypoints, "wall_seconds": f"{wall:.0f}", "results": str(results)}
+    if a.collect_only and out.exists():  # the run's own wall clock and notes stay
+        meta = {**read_table(out, "fit_suite").attrs, "keypoints": a.keypoints,
+                "results": str(results)}
+        wall = float(meta.get("wall_seconds", 0))
+    write_table(df, out, "fit_suite", metadata=meta)
     plot_suite(df, out.with_suffix(".svg"))
     cols = ["scene", "cameras", "arc_deg", "image", "frames", "camera_rotation_deg",
             "camera_centre_m", "body_mpjpe_mm", "hands_mpjpe_mm", "camera_init", "unplaced",

@@ -104,3 +104,27 @@ def test_the_report_command_shows_the_suite(tmp_path):
         shown = "generalisation suite" in page
         assert shown == (name == "with"), name
         assert (tmp_path / name / "tables" / "fit_suite_00_per_scene.tsv").exists() == shown
+
+
+def test_collecting_again_keeps_the_run_s_wall_clock(tmp_path):
+    """`benchmarks/fit_suite.py --collect-only` rebuilds the table from finished results; the
+    wall clock and notes the run itself recorded stay (a rebuild takes no time of its own)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    _fake(tmp_path, "issue29", 4.0, 0.01, 30.0, ["sfm"] * 3)
+    out = tmp_path / "fit_suite.parquet"
+    cmd = [sys.executable, str(repo / "benchmarks" / "fit_suite.py"), "--collect-only",
+           "--scenes", "issue29", "--results", str(tmp_path), "--out", str(out)]
+    subprocess.run(cmd, check=True, capture_output=True, cwd=repo)
+    first = read_table(out, "fit_suite")
+    assert float(first.attrs["wall_seconds"]) < 60  # no run: only the collection's own time
+    write_table(first, out, "fit_suite", metadata={**first.attrs, "wall_seconds": "5400",
+                                                   "note": "two runs"})
+    res = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=repo)
+    again = read_table(out, "fit_suite")
+    assert again.attrs["wall_seconds"] == "5400" and again.attrs["note"] == "two runs"
+    assert "1.50 h wall clock" in res.stdout
+    assert again.loc[0, "camera_rotation_deg"] == 4.0
