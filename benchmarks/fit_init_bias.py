@@ -37,10 +37,10 @@ from signsplat.config import validate  # noqa: E402
 from signsplat.fit import data  # noqa: E402
 from signsplat.fit.bodyfit import load_keypoint_model  # noqa: E402
 from signsplat.fit.cameras import Rig  # noqa: E402
-from signsplat.fit.evaluate import camera_errors  # noqa: E402
+from signsplat.fit.evaluate import placed_camera_errors  # noqa: E402
 from signsplat.fit.filters import clean_observations  # noqa: E402
 from signsplat.fit.multiview import neutral_keypoints  # noqa: E402
-from signsplat.fit.rig_init import place_cameras  # noqa: E402
+from signsplat.fit.rig_init import place_cameras, placed_views  # noqa: E402
 from signsplat.io.atomic import atomic_path  # noqa: E402
 
 
@@ -81,12 +81,10 @@ def scene_rows(results: Path, scene: str, cfg: dict, noise: list[float]) -> list
         clean, _ = clean_observations(obs, frames / 25.0, rig_cal.height, cfg)
         hyp = place_cameras(kp0, clean, rig_cal.K, rig_cal.width, rig_cal.height,
                             cfg["multiview"])
-        ok = [v for v, s in enumerate(hyp.status) if s not in ("no_detections", "unplaced")]
-        sub = (lambda r: Rig(r.K[ok], r.R[ok], r.t[ok], r.width[ok], r.height[ok]))
-        err = camera_errors(sub(Rig(rig_cal.K, hyp.R, hyp.t, rig_cal.width, rig_cal.height)),
-                            sub(truth_rig))
+        err, _ = placed_camera_errors(Rig(rig_cal.K, hyp.R, hyp.t, rig_cal.width,
+                                          rig_cal.height), truth_rig, hyp.status)
         rows.append(dict(scene=scene, keypoints=name, cameras=rig_cal.num_views,
-                         winner=hyp.winner, unplaced=rig_cal.num_views - len(ok),
+                         winner=hyp.winner, unplaced=rig_cal.num_views - len(placed_views(hyp.status)),
                          camera_rotation_deg=err["rotation_deg_mean"],
                          camera_rotation_deg_max=err["rotation_deg_max"],
                          camera_centre_m=err["centre_m_mean"],

@@ -35,6 +35,11 @@ class Rig:
         """Camera centres in the world, (V,3): ``C = -R^T t``."""
         return -np.einsum("vji,vj->vi", self.R, self.t)
 
+    def select(self, views) -> "Rig":
+        """The rig of the cameras ``views`` (indices or a slice), in that order."""
+        return Rig(K=self.K[views], R=self.R[views], t=self.t[views], width=self.width[views],
+                   height=self.height[views])
+
 
 def look_at(centre: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """World->camera ``(R, t)`` of an OpenCV camera at ``centre`` looking at ``target``.

@@ -20,6 +20,7 @@ from signsplat.errors import InputError
 from signsplat.fit.bodyfit import KeypointModel, keypoints_of
 from signsplat.fit.cameras import Rig, project
 from signsplat.fit.data import read_rig, read_smplx
+from signsplat.fit.rig_init import placed_views
 from signsplat.fit.sequence import FitResult
 from signsplat.geometry.align import Similarity, rotation_angle_deg, umeyama  # noqa: F401
 
@@ -77,6 +78,16 @@ def camera_errors(fit: Rig, gt: Rig) -> dict[str, float]:
             "centre_m_mean": float(cen.mean()), "centre_m_max": float(cen.max()),
             "focal_rel_err_mean": float(f_err.mean()), "scale": float(sim.s),
             "alignment": method}
+
+
+def placed_camera_errors(fit: Rig, gt: Rig, status: list[str]
+                         ) -> tuple[dict[str, float], Similarity]:
+    """:func:`camera_errors` and the gauge alignment over the cameras the fit placed
+    (``status`` per view; all views when none was placed): cameras without detections or that
+    could not be placed are not measured (fit_eval counts them in ``cameras_unplaced``)."""
+    ok = placed_views(status) or list(range(fit.num_views))
+    sim, _ = gauge_alignment(fit.select(ok), gt.select(ok))
+    return camera_errors(fit.select(ok), gt.select(ok)), sim
 
 
 def mpjpe_mm(pred: np.ndarray, gt: np.ndarray, root: np.ndarray | int | None) -> float:
@@ -248,22 +259,11 @@ def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode:
     if gt_cameras:
         gt_rig, _ = read_rig(gt_cameras)
         if view is not None:
-            gt_rig = Rig(K=gt_rig.K[view:view + 1], R=gt_rig.R[view:view + 1],
-                         t=gt_rig.t[view:view + 1], width=gt_rig.width[view:view + 1],
-                         height=gt_rig.height[view:view + 1])
+            gt_rig = gt_rig.select(slice(view, view + 1))
         if gt_rig.num_views != rig.num_views:
             raise InputError(f"{gt_cameras}: {gt_rig.num_views} cameras, the fit has "
                              f"{rig.num_views}")
-        # cameras without detections or that could not be placed are not measured (counted
-        # in the row cameras_unplaced instead)
-        ok = [v for v, s in enumerate(result.camera_status)
-              if s not in ("no_detections", "unplaced")] or list(range(rig.num_views))
-
-        def sub(r):
-            return Rig(K=r.K[ok], R=r.R[ok], t=r.t[ok], width=r.width[ok], height=r.height[ok])
-
-        cam = camera_errors(sub(rig), sub(gt_rig))
-        sim, _ = gauge_alignment(sub(rig), sub(gt_rig))
+        cam, sim = placed_camera_errors(rig, gt_rig, result.camera_status)
         if mode == "multiview":
             rows += [("camera_rotation", "cameras", cam["rotation_deg_mean"], "deg"),
                      ("camera_rotation_max", "cameras", cam["rotation_deg_max"], "deg"),

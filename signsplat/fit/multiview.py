@@ -38,7 +38,8 @@ from signsplat.fit.bodyfit import FitParams, KeypointModel
 from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_up_direction,
                                    triangulate)
 from signsplat.fit.flow import flow_targets
-from signsplat.fit.rig_init import PNP_KEYPOINTS, exchange_sides, place_cameras, side_swaps
+from signsplat.fit.rig_init import (PNP_KEYPOINTS, exchange_sides, inlier_threshold_px,
+                                    place_cameras, placed_views, side_swaps)
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
@@ -131,7 +132,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         status = hyp.status
         rig0 = Rig(K=np.asarray(K, float), R=hyp.R, t=hyp.t, width=np.asarray(width),
                    height=np.asarray(height))
-        solved = [v for v in range(V) if status[v] not in ("no_detections", "unplaced")]
+        solved = placed_views(status)
         if not solved:
             raise ValueError("no camera could be placed: too few keypoints seen by the views "
                              "(see the camera init lines of the log)")
@@ -152,8 +153,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
                  status, hyp.winner, ref, np.round(rms, 2).tolist())
     if mv["repair_sides"]:
-        thr = mv["init"]["threshold"] * float(np.median(np.asarray(height, float)))
-        swaps = side_swaps(rig0.K, rig0.R, rig0.t, obs, thr, views=solved)
+        swaps = side_swaps(rig0.K, rig0.R, rig0.t, obs, inlier_threshold_px(mv["init"], height),
+                           views=solved)
         if swaps.any():
             obs = exchange_sides(obs, swaps)
             log.info("left and right exchanged back in %d view-frames (views %s)",

@@ -74,6 +74,18 @@ class RigHypotheses:
     rigs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
+def placed_views(status: list[str]) -> list[int]:
+    """The views whose camera the initialisation placed (not ``no_detections``, not
+    ``unplaced``), from :attr:`RigHypotheses.status` or the fit's camera status."""
+    return [v for v, st in enumerate(status) if st not in ("no_detections", "unplaced")]
+
+
+def inlier_threshold_px(init_cfg: dict, height) -> float:
+    """The initialisation's inlier distance in pixels: ``init.threshold`` times the median
+    image height of the views."""
+    return init_cfg["threshold"] * float(np.median(np.asarray(height, float)))
+
+
 # --- observations as tracks -----------------------------------------------------------------
 
 def tracks(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -897,7 +909,7 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
     uv_t, w_t = tracks(test)
     live = [v for v in range(V) if (obs[v, ..., 2] > 0).any()]
     limit = ic["unplaced_fraction"] * H
-    thr = ic["threshold"] * float(np.median(H))
+    thr = inlier_threshold_px(ic, H)
     chest = kp_neutral[[5, 6]].mean(0)
     prior = rig_prior(K, width, height, V, cfg["camera_prior"]["arc_degrees"],
                       cfg["camera_prior"]["distance"], chest)
@@ -982,9 +994,8 @@ def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width,
     hyp = initial_rig(kp_neutral, obs, K, width, height, cfg)
     if not cfg["repair_sides"]:
         return hyp
-    placed = [v for v, st in enumerate(hyp.status) if st not in ("no_detections", "unplaced")]
-    thr = cfg["init"]["threshold"] * float(np.median(np.asarray(height, float)))
-    swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs, thr, views=placed)
+    swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs,
+                       inlier_threshold_px(cfg["init"], height), views=placed_views(hyp.status))
     if swaps.sum() <= 0.02 * swaps.size:
         return hyp
     log.info("camera init: left and right exchanged in %d view-frames; placing the cameras "

@@ -43,11 +43,6 @@ class FitError(SignSplatError, RuntimeError):
     """The fit could not run on these inputs (the message names the file)."""
 
 
-def _one_view(rig: Rig, view: int) -> Rig:
-    sl = slice(view, view + 1)
-    return Rig(K=rig.K[sl], R=rig.R[sl], t=rig.t[sl], width=rig.width[sl], height=rig.height[sl])
-
-
 def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathLike | None,
             body: str | os.PathLike, *, frames: str | os.PathLike | None = None,
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
@@ -86,7 +81,7 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
         if not 0 <= view < rig_cal.num_views:
             raise InputError(f"{calibration}: no view {view}")
         obs = obs[view:view + 1]
-        rig_cal = _one_view(rig_cal, view)
+        rig_cal = rig_cal.select(slice(view, view + 1))
     if frames_df is not None:
         tmap = frames_df.groupby("frame")["time"].first()
         times = np.array([tmap.get(f, f / fps) for f in seq_frames], dtype=np.float64)
