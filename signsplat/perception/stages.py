@@ -186,6 +186,10 @@ class SimccKeypointer:
         person box is the mask's; ``persons`` is not used)."""
         return detect_batch(self.model, self.spec, images, boxes)
 
+    def finish(self, frames, xy, sc):
+        """One view's keypoints after its last frame: unchanged (frames are independent)."""
+        return xy, sc, {}
+
 
 def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
     """The keypointer for ``spec``: a :class:`KeypointSpec` (SimCC ONNX model) or a
@@ -265,12 +269,38 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
         bar.update(len(chunk))
     bar.close()
     t0 = time.perf_counter()
+    xys, scs = _finish_views(kp, keys, xys, scs)
+    t["model"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
     write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})
     t["write"] += time.perf_counter() - t0
     t["total"] = time.perf_counter() - t_start
     report = StageReport(df, bad, t, len(keys))
     return _finish(report, skip_bad_frames, "detect_keypoints")
+
+
+def _finish_views(kp, keys: list[tuple[str, int, int]], xys: list, scs: list
+                  ) -> tuple[list, list]:
+    """Each view's keypoints through the keypointer's ``finish`` (what needs the whole view,
+    e.g. clearing a neighbour's still hand); logs what was cleared."""
+    xys, scs = list(xys), list(scs)
+    by_view: dict[tuple[str, int], list[int]] = {}
+    for i, (scene, view, _) in enumerate(keys):
+        by_view.setdefault((scene, view), []).append(i)
+    for (scene, view), rows in by_view.items():
+        rows = sorted(rows, key=lambda i: keys[i][2])
+        frames = np.array([keys[i][2] for i in rows])
+        xy, sc, cleared = kp.finish(frames, np.stack([xys[i] for i in rows]),
+                                    np.stack([scs[i] for i in rows]))
+        for j, i in enumerate(rows):
+            xys[i], scs[i] = xy[j], sc[j]
+        for side, n in cleared.items():
+            if n:
+                print(f"keypoints: {scene} view {view}: the {side} hand cleared in {n} frame(s) "
+                      f"(it stays put while the pose's wrist moves: another person's hand)",
+                      file=sys.stderr)
+    return xys, scs
 
 
 def keypoints_frame(keys: list[tuple[str, int, int]], xys: list[np.ndarray],

@@ -33,12 +33,15 @@ ROIS = {
     "pose_landmark_full": (210.0, 330.0, 560.0, 0.15),
     "hand_recrop": (205.0, 470.0, 150.0, 0.3),
     "hand_landmark_full": (205.0, 465.0, 110.0, -0.2),
+    "palm_detection_full": (205.0, 460.0, 200.0, 0.0),
     "face_detection_short_range": (225.0, 125.0, 260.0, 0.0),
     "face_landmark": (224.0, 125.0, 130.0, 0.08),
 }
 SIZES = {"pose_detection": 224, "pose_landmark_full": 256, "hand_recrop": 256,
-         "hand_landmark_full": 224, "face_detection_short_range": 128, "face_landmark": 192}
+         "hand_landmark_full": 224, "palm_detection_full": 192, "face_detection_short_range": 128,
+         "face_landmark": 192}
 RANGES = {"pose_detection": (-1.0, 1.0), "face_detection_short_range": (-1.0, 1.0)}
+ZERO_BORDER = ("pose_detection", "palm_detection_full", "face_detection_short_range")
 
 
 def model_inputs(image: np.ndarray) -> dict[str, np.ndarray]:
@@ -49,16 +52,16 @@ def model_inputs(image: np.ndarray) -> dict[str, np.ndarray]:
     for name, (cx, cy, side, rot) in ROIS.items():
         s = SIZES[name]
         out[name] = mp.crop(image, mp.Roi(cx, cy, side, side, rot), (s, s),
-                            RANGES.get(name, (0.0, 1.0)), "zero" if name in RANGES else "replicate")
+                            RANGES.get(name, (0.0, 1.0)), "zero" if name in ZERO_BORDER else "replicate")
     return out
 
 
 def summarise(name: str, outs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The stored part of a model's raw outputs (NHWC arrays as the TFLite runtime gives
     them): small outputs whole, detector boxes of the 10 best anchors, heatmap maxima."""
-    if name in ("pose_detection", "face_detection_short_range"):
-        boxes, scores = (outs["Identity"], outs["Identity_1"]) if name == "pose_detection" \
-            else (outs["regressors"], outs["classificators"])
+    if name in ("pose_detection", "palm_detection_full", "face_detection_short_range"):
+        boxes, scores = (outs["regressors"], outs["classificators"]) \
+            if name == "face_detection_short_range" else (outs["Identity"], outs["Identity_1"])
         scores = scores.reshape(-1)
         top = np.argsort(-scores)[:10]
         return {"scores": scores, "top": top, "top_boxes": boxes.reshape(len(scores), -1)[top]}

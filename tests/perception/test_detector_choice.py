@@ -45,8 +45,9 @@ def test_files_each_choice_reads():
                        "keypoints": ["models/keypoints.onnx"]}
     pre = detector_files(CFG, "pretrained")
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
-    assert len(pre["keypoints"]) == 6 and all(f.startswith("models/cache/") and f.endswith(".onnx")
-                                              for f in pre["keypoints"])
+    assert pre["keypoints"] == [f"models/cache/{name}.onnx" for name in (
+        "pose_detection", "pose_landmark_full", "hand_recrop", "hand_landmark_full",
+        "palm_detection_full", "face_detection_short_range", "face_landmark")]
     # the example clip is a fetched asset in the same cache (the fetch_assets rule makes it)
     moved = {**CFG, "pretrained": {**CFG["pretrained"], "cache": "/elsewhere"}}
     assert asset_files(moved) == {"demovideo": "/elsewhere/demovideo.mp4"}

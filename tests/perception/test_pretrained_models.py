@@ -21,7 +21,8 @@ from signsplat.perception.contracts import open_session
 from signsplat.perception.keypoints import box_from_mask
 from signsplat.perception.pretrained.fetch import load_manifest
 from signsplat.perception.pretrained.keypointer import MediaPipeSpec, MediaPipeWholeBody
-from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES
+from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES, to_coco_wholebody
+from signsplat.perception.still_hands import drop_still_hands
 
 CFG = validate({}, "stages/perception.schema.yaml")
 CACHE = REPO_ROOT / CFG["pretrained"]["cache"]
@@ -378,10 +379,12 @@ def test_face_is_the_one_at_the_pose_nose_not_the_best_scored(keypointer, monkey
 CLIP = CACHE / "demovideo.mp4"
 
 
-def _clip_left_hands(keypointer, start: int, end: int, near) -> list[str]:
+def _clip_left_hands(keypointer, start: int, end: int, near, coco: list | None = None
+                     ) -> list[str]:
     """Per frame of the example clip (384 x 256, as config/footage.tsv takes it), how the man's
-    left hand was found: 'pose' (the pose's region), 'tracked' or '' (not found). He is the
-    person the detector finds nearest ``near`` in the first frame, then followed."""
+    left hand was found: 'pose' (the pose's region), 'tracked', 'palm' or '' (not found). He
+    is the person the detector finds nearest ``near`` in the first frame, then followed.
+    ``coco`` collects each frame's COCO-WholeBody (xy, scores)."""
     from signsplat.io.video import iter_frames
 
     keypointer.reset()
@@ -394,20 +397,54 @@ def _clip_left_hands(keypointer, start: int, end: int, near) -> list[str]:
             person = det.keypoints[j, :2]
         res, dbg = keypointer.detect_one(image, person)
         found = res is not None and res.hands.get("left") is not None
-        how.append("" if not found else "tracked" if "left" in dbg.hands_tracked else "pose")
+        how.append("" if not found else "tracked" if "left" in dbg.hands_tracked
+                   else "palm" if "left" in dbg.hands_from_palm else "pose")
+        if coco is not None:
+            coco.append(to_coco_wholebody(res, keypointer.spec.min_score))
     return how
 
 
 @pytest.mark.skipif(not CLIP.is_file(), reason=f"the example clip is not fetched into {CACHE}")
-def test_hand_tracking_finds_the_resting_hand_and_not_a_neighbours(keypointer):
-    """Example clip, the man's left hand (benchmarks/data/demovideo_hands.yaml): at his hip
-    (frames 330-347) the pose's region misses it in several frames and tracking from the last
-    frame finds it; behind the woman beside him (372-391) the pose's region takes her hand in
-    a few frames, and tracking must not follow it on (its wrist is far from his)."""
+def test_hand_tracking_finds_the_resting_hand_and_not_a_neighbours():
+    """Example clip, the man's left hand (benchmarks/data/demovideo_hands.yaml), tracking alone
+    (no palm search): at his hip (frames 330-347) the pose's region misses it in several
+    frames and tracking from the last frame finds it; behind the woman beside him (372-391)
+    the pose's region takes her hand in a few frames, and tracking must not follow it on (its
+    wrist is far from his)."""
     near = np.array([110.0, 270.0])
+    keypointer = MediaPipeWholeBody(spec(palm_search=0.0), threads=1)
     rest = _clip_left_hands(keypointer, 330, 348, near)
     hidden = _clip_left_hands(keypointer, 372, 392, near)
     assert rest.count("tracked") >= 3 and rest.count("") <= 4, rest
     assert hidden.count("tracked") == 0, hidden
-    off = MediaPipeWholeBody(spec(hand_track_reach=0.0), threads=1)
+    off = MediaPipeWholeBody(spec(hand_track_reach=0.0, palm_search=0.0), threads=1)
     assert "tracked" not in _clip_left_hands(off, 330, 348, near)
+
+
+@pytest.mark.skipif(not CLIP.is_file(), reason=f"the example clip is not fetched into {CACHE}")
+def test_palm_search_finds_the_fast_hand_and_her_still_hand_is_cleared(keypointer):
+    """Example clip, the man's left hand: while it moves fast (frames 284-296) the pose's
+    wrist is unsure and its region misses (276-297 from his hand's first frame out of the
+    pocket); palm search around the wrist finds it. Behind the
+    woman (367 on) palm search and the pose's region find her hand, which stays put while his
+    wrist moves: clearing still tracks removes it there and keeps his resting hand (350-357)."""
+    near = np.array([110.0, 270.0])
+    fast = _clip_left_hands(keypointer, 276, 297, near)
+    without = _clip_left_hands(MediaPipeWholeBody(spec(palm_search=0.0), threads=1), 276, 297,
+                               near)
+    assert fast.count("palm") >= 6 and fast.count("") <= without.count("") - 6, (fast, without)
+
+    coco = []
+    how = _clip_left_hands(keypointer, 345, 401, near, coco)
+    frames = np.arange(345, 401)
+    xy, sc = (np.stack(a) for a in zip(*coco))
+    left = list(KP_LEFT_HAND)
+    found = (sc[:, left] >= 0.5).mean(1) >= 0.5
+    hers, his = frames >= 367, (frames >= 350) & (frames <= 357)
+    assert found[hers].mean() > 0.8, how  # her hand, before clearing
+    xy2, sc2, cleared = drop_still_hands(frames, xy, sc, ratio=keypointer.spec.still_hand_ratio,
+                                         min_score=0.5)
+    kept = (sc2[:, left] >= 0.5).mean(1) >= 0.5
+    assert kept[hers].mean() < 0.1, (how, cleared)
+    assert kept[his].sum() >= 5 and np.array_equal(kept[his], found[his]), how
+    assert cleared["right"] == 0

@@ -19,6 +19,11 @@ Per frame (ROI = rotated square region of interest, :mod:`.mediapipe`):
    again in the ROI of the last frame's hand landmarks (2x, shifted 0.1 towards the fingers,
    as MediaPipe's hand tracking does) and kept when :func:`tracked_hand_kept` says so: its
    wrist near the pose's, which keeps a neighbour's hand in front of a hidden one out.
+   When both miss, the palm detector (192 x 192) looks in a square around the pose's wrist
+   (``palm_search`` times the person's region); each palm gives a hand ROI (its box, turned
+   from the palm's wrist point to its middle knuckle, 2.6x, shifted half a palm towards the
+   fingers, as MediaPipe's hand pipeline does), and the hand found there whose wrist lies
+   nearest the pose's wrist is taken.
 4. **Face**: an ROI from the pose's face points (their box, turned eye-to-eye, 3x) in which
    the short-range face detector (128 x 128) finds faces; the one whose nose tip is nearest
    the pose's nose (not MediaPipe's best-scored one: in a crowd that can be a neighbour's)
@@ -27,6 +32,10 @@ Per frame (ROI = rotated square region of interest, :mod:`.mediapipe`):
 
 Hands are assigned by the pose's sides; the hand model's handedness is kept as a check
 (:func:`~.wholebody.left_hand_prob`: MediaPipe's label assumes mirrored images).
+
+After a view's last frame, :meth:`MediaPipeKeypointer.finish` clears the hands that stay put
+while the pose's wrist moves (``still_hand_ratio``, :mod:`signsplat.perception.still_hands`):
+a neighbour's hand in front of the signer's hidden one.
 """
 
 from __future__ import annotations
@@ -39,6 +48,7 @@ from signsplat.body.joints import NUM_KEYPOINTS
 from signsplat.perception.contracts import ModelContractError, open_session
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.fetch import FetchError, model_file
+from signsplat.perception.still_hands import drop_still_hands
 from signsplat.perception.pretrained.wholebody import (
     POSE_ELBOW,
     POSE_FACE_POINTS,
@@ -57,10 +67,12 @@ POSE_DET = dict(name="pose_detection", size=224, range=(-1.0, 1.0), border="zero
 POSE_LMK = dict(name="pose_landmark_full", size=256, range=(0.0, 1.0))
 HAND_RECROP = dict(name="hand_recrop", size=256, range=(0.0, 1.0))
 HAND_LMK = dict(name="hand_landmark_full", size=224, range=(0.0, 1.0))
+PALM_DET = dict(name="palm_detection_full", size=192, range=(0.0, 1.0), border="zero",
+                strides=(8, 16, 16, 16), keypoints=7)
 FACE_DET = dict(name="face_detection_short_range", size=128, range=(-1.0, 1.0), border="zero",
                 strides=(8, 16, 16, 16), keypoints=6)
 FACE_LMK = dict(name="face_landmark", size=192, range=(0.0, 1.0))
-MODELS = (POSE_DET, POSE_LMK, HAND_RECROP, HAND_LMK, FACE_DET, FACE_LMK)
+MODELS = (POSE_DET, POSE_LMK, HAND_RECROP, HAND_LMK, PALM_DET, FACE_DET, FACE_LMK)
 NMS_IOU = 0.3
 
 
@@ -79,6 +91,9 @@ class MediaPipeSpec:
     min_hand_presence: float
     hand_track_reach: float
     hand_track_trust: float
+    palm_search: float
+    min_palm_score: float
+    still_hand_ratio: float
     min_face_detection_score: float
     min_face_presence: float
     min_score: float
@@ -117,6 +132,7 @@ class FrameDebug:
     tracked: bool = False
     hand_rois: dict = field(default_factory=dict)
     hands_tracked: set = field(default_factory=set)
+    hands_from_palm: set = field(default_factory=set)
     face_roi: mp.Roi | None = None
 
 
@@ -157,7 +173,7 @@ class MediaPipeWholeBody:
         self.sessions = {m["name"]: _session(spec.cache, m["name"], m["size"], threads,
                                              spec.device) for m in MODELS}
         self.anchors = {m["name"]: mp.ssd_anchors(m["size"], m["strides"])
-                        for m in (POSE_DET, FACE_DET)}
+                        for m in (POSE_DET, PALM_DET, FACE_DET)}
         self.prev_roi: mp.Roi | None = None
         self.prev_hands: dict[str, np.ndarray] = {}  # side -> last frame's 21 hand points
 
@@ -228,6 +244,18 @@ class MediaPipeWholeBody:
         """One hand's landmarks in the ROI of the last frame's 21 points ``last``."""
         roi = mp.transform_roi(mp.hand_landmarks_roi(last), 2.0, 2.0, shift_y=-0.1)
         return self.hand_in(image, roi)
+
+    def palm_hands(self, image: np.ndarray, centre, side: float
+                   ) -> list[tuple[HandResult, mp.Roi]]:
+        """The hand landmark model in the region of every palm the palm detector finds in a
+        square of ``side`` pixels around ``centre``."""
+        search = mp.Roi(float(centre[0]), float(centre[1]), side, side, 0.0)
+        det = self._detect(PALM_DET, image, search, self.spec.min_palm_score)
+        out = []
+        for box, kps in zip(det.boxes, det.keypoints):
+            roi = mp.box_roi(box.reshape(2, 2), mp.rotation_between(kps[0], kps[2], np.pi / 2))
+            out.append(self.hand_in(image, mp.transform_roi(roi, 2.6, 2.6, shift_y=-0.5)))
+        return out
 
     def hand_in(self, image: np.ndarray, roi: mp.Roi) -> tuple[HandResult, mp.Roi]:
         """The hand landmark model in ``roi``: 21 points, presence, handedness."""
@@ -308,7 +336,8 @@ class MediaPipeWholeBody:
 
     def _hand_of(self, image, result: WholeBodyResult, side: str,
                  dbg: FrameDebug) -> HandResult | None:
-        """The ``side`` hand of the pose ``result``: from the pose's region, else tracked."""
+        """The ``side`` hand of the pose ``result``: from the pose's region, else tracked, else
+        from a palm near the pose's wrist."""
         s = self.spec
         w, p, i = POSE_HAND_POINTS[side]
         vis = float(result.pose_visibility[w])
@@ -319,16 +348,24 @@ class MediaPipeWholeBody:
         if hand.presence >= s.min_hand_presence:
             return hand
         last = self.prev_hands.get(side)
-        if not (s.track and s.hand_track_reach > 0 and last is not None):
-            return None
-        hand, roi = self.tracked_hand(image, last)
-        if hand.presence < s.min_hand_presence or not tracked_hand_kept(
-                hand.points[0], result.pose[w], result.pose[POSE_ELBOW[side]], vis,
-                s.hand_track_reach, s.hand_track_trust):
-            return None
-        dbg.hand_rois[side] = roi
-        dbg.hands_tracked.add(side)
-        return hand
+        if s.track and s.hand_track_reach > 0 and last is not None:
+            hand, roi = self.tracked_hand(image, last)
+            if hand.presence >= s.min_hand_presence and tracked_hand_kept(
+                    hand.points[0], result.pose[w], result.pose[POSE_ELBOW[side]], vis,
+                    s.hand_track_reach, s.hand_track_trust):
+                dbg.hand_rois[side] = roi
+                dbg.hands_tracked.add(side)
+                return hand
+        if s.palm_search > 0 and dbg.pose_roi is not None:
+            found = [(h, r) for h, r in self.palm_hands(image, result.pose[w],
+                                                        s.palm_search * dbg.pose_roi.w)
+                     if h.presence >= s.min_hand_presence]
+            if found:
+                hand, dbg.hand_rois[side] = min(
+                    found, key=lambda hr: float(np.linalg.norm(hr[0].points[0] - result.pose[w])))
+                dbg.hands_from_palm.add(side)
+                return hand
+        return None
 
     def _pose_in(self, image, roi: mp.Roi, dbg: FrameDebug) -> WholeBodyResult | None:
         out = self.pose(image, roi)
@@ -375,3 +412,11 @@ class MediaPipeKeypointer:
                 continue
             xy[i], sc[i] = self.model.detect(image, persons[i])
         return xy, sc
+
+    def finish(self, frames: np.ndarray, xy: np.ndarray, sc: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+        """One view's keypoints (frame order) after its last frame, with the hands of still
+        tracks cleared, and per side the frames cleared."""
+        s = self.model.spec
+        return drop_still_hands(frames, xy, sc, ratio=s.still_hand_ratio,
+                                min_score=s.min_hand_presence, trust=s.hand_track_trust)
