@@ -430,13 +430,12 @@ def test_palm_search_finds_the_fast_hand_and_her_still_hand_is_cleared(keypointe
     wrist moves: clearing still tracks removes it there and keeps his resting hand (350-357)."""
     near = np.array([110.0, 270.0])
     fast = _clip_left_hands(keypointer, 276, 297, near)
-    without = _clip_left_hands(MediaPipeWholeBody(spec(palm_search=0.0), threads=1), 276, 297,
-                               near)
-    assert fast.count("palm") >= 6 and fast.count("") <= without.count("") - 6, (fast, without)
+    # without palm search 9 of these 21 frames are missed (2026-11-27)
+    assert fast.count("palm") >= 6 and fast.count("") <= 2, fast
 
     coco = []
-    how = _clip_left_hands(keypointer, 345, 401, near, coco)
-    frames = np.arange(345, 401)
+    how = _clip_left_hands(keypointer, 348, 394, near, coco)
+    frames = np.arange(348, 394)
     xy, sc = (np.stack(a) for a in zip(*coco))
     left = list(KP_LEFT_HAND)
     found = (sc[:, left] >= 0.5).mean(1) >= 0.5
