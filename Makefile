@@ -20,8 +20,17 @@ $(BIN)/python:
 TORCH       ?= torch==2.13.0+cpu
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
+# TORCH_INDEX is passed to pip only when it answers: where it cannot be reached (a machine that
+# sees only PyPI and its own wheel folders) pip would otherwise retry it for every package.
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) "$(TORCH)"
+	@index="$(TORCH_INDEX)"; \
+	if [ -n "$$index" ] && ! $(BIN)/python -c "import os, sys, urllib.parse as p, urllib.request as r; \
+	    u = p.urlparse(sys.argv[1]); \
+	    (u.scheme == 'file' and os.path.isdir(r.url2pathname(u.path))) or r.urlopen(sys.argv[1], timeout=10)" \
+	    "$$index" >/dev/null 2>&1; then \
+	  echo "$$index does not answer: $(TORCH) from pip's other indexes"; index=""; fi; \
+	echo "$(BIN)/pip install -q $${index:+--extra-index-url $$index} \"$(TORCH)\""; \
+	$(BIN)/pip install -q $${index:+--extra-index-url $$index} "$(TORCH)"
 	$(BIN)/pip install -q -e ".[test]"
 	@touch $(STAMP)
 
