@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from signsplat.body.joints import KP_LEFT_HAND, KP_RIGHT_HAND, COCO_BODY_NAMES
+from signsplat.perception.quality import PARTS, WRIST_ELBOW, hand_found
 
-HANDS = {"left": KP_LEFT_HAND, "right": KP_RIGHT_HAND}
-WRIST = {side: COCO_BODY_NAMES.index(f"{side}_wrist") for side in HANDS}
+HANDS = {side: PARTS[f"{side}_hand"] for side in ("left", "right")}
+WRIST = {side: WRIST_ELBOW[f"{side}_hand"][0] for side in HANDS}
 MIDDLE_KNUCKLE = 9  # of the 21 hand points (wrist 0, then 4 per finger from the thumb)
 
 
@@ -47,7 +47,7 @@ def still_hand_frames(frames: np.ndarray, xy: np.ndarray, sc: np.ndarray, side: 
     ``frames`` (T,) sorted frame numbers of one view, ``xy`` (T, 133, 2), ``sc`` (T, 133);
     a hand is found where at least half of its points score ``min_score``."""
     ids = list(HANDS[side])
-    found = (sc[:, ids] >= min_score).mean(1) >= 0.5
+    found = hand_found(sc, f"{side}_hand", min_score)
     out = np.zeros(len(frames), bool)
     idx = np.flatnonzero(found & np.isfinite(xy[:, ids[0]]).all(1))
     if ratio <= 0 or len(idx) < min_frames:
