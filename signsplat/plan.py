@@ -25,6 +25,8 @@ from signsplat.report.variants import (ablation_plan, regularizer_plan, sweep_pl
 
 #: The variants `rule all` trains (the quality profile is asked for by `snakemake quality`).
 DEFAULT_VARIANTS = ("demo",)
+#: Threads a job of a multi-threaded stage (torch, OpenCV, ONNX Runtime) asks for at most.
+STAGE_THREADS = 2
 PROFILE_VARIANTS = {"demo": {"profile": "demo"}, "quality": {"profile": "quality"}}
 
 
@@ -133,6 +135,12 @@ class Plan:
         self.variants[name] = resolved
         return name
 
+    def job_threads(self, cores: int | None) -> int:
+        """Threads of one job of a multi-threaded stage when the run's sequences share
+        ``cores`` (:func:`job_threads`; None: every job has cores of its own, as on a
+        cluster)."""
+        return job_threads(len(self.sequences), cores)
+
     def study_scene(self, config: dict, key: str) -> str | None:
         """Config ``<key>.scene``, or the default multi-view scene."""
         scene = config[key]["scene"]
@@ -142,6 +150,16 @@ class Plan:
             raise ConfigError(f"{self.source}: {key}.scene = {scene!r} is not a sequence "
                               f"of this run; allowed: {sorted(self.sequences)}")
         return scene
+
+
+def job_threads(chains: int, cores: int | None, wanted: int = STAGE_THREADS) -> int:
+    """Threads of one job when ``chains`` independent chains of jobs (one per sequence) share
+    ``cores``: ``wanted``, or each chain's share of the cores where they are fewer than
+    ``chains * wanted`` (at least one). Two one-thread jobs side by side do more than two
+    threads in one job, which scale less than twice (docs/architecture.md)."""
+    if cores is None or chains < 2:
+        return wanted
+    return max(1, min(wanted, cores // chains))
 
 
 def plan(config: dict, user_config: dict | None = None, root: str = ".",

@@ -135,3 +135,18 @@ def test_the_fit_sweep_runs_on_a_multi_view_sequence_with_its_own_mode_config(tm
     assert plan(cfg, user, root=ROOT).fit_sweep == {}
     cfg, user = _config(tmp_path, fit={"mode": "singleview"})
     assert plan(cfg, user, root=ROOT).fit_sweep == {}
+
+
+def test_job_threads_share_the_local_cores_between_sequences():
+    from signsplat.plan import STAGE_THREADS, job_threads
+
+    assert STAGE_THREADS == 2
+    # two sequences on two cores: one thread per job, so both chains run side by side
+    assert job_threads(2, 2) == 1
+    # one sequence, or cores enough for every chain: the stage's own two threads
+    assert job_threads(1, 2) == 2
+    assert job_threads(2, 4) == 2 and job_threads(3, 16) == 2
+    # more sequences than cores: still one thread
+    assert job_threads(5, 2) == 1 and job_threads(3, 4) == 1
+    # no local cores given (a cluster: each job has its own): the stage's own
+    assert job_threads(10, None) == 2

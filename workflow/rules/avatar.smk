@@ -44,7 +44,8 @@ rule train_avatar:
         f"{RESULTS}/_logs/{{scene}}/train_avatar_{{variant}}.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/train_avatar_{{variant}}.tsv"
-    threads: 2
+    priority: AVATAR
+    threads: job_threads
     resources:
         mem_mb=6000,
         runtime=120,
@@ -73,7 +74,7 @@ rule evaluate_avatar:
         f"{RESULTS}/_logs/{{scene}}/evaluate_{{variant}}.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/evaluate_{{variant}}.tsv"
-    threads: 2
+    threads: job_threads
     resources:
         mem_mb=4000,
         runtime=60,

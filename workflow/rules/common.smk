@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from signsplat.config import validate
-from signsplat.plan import plan
+from signsplat.plan import STAGE_THREADS, plan
 
 # The config as the user gave it (files and --config), before the schema fills its defaults
 # in: a section with named profiles (avatar) puts the profile under the user's own values
@@ -23,6 +23,24 @@ RESULTS = config["results"]
 DEVICE = config["device"]
 # What this run does (signsplat.plan): sequences, the default scene, avatar variants.
 PLAN = plan(config, USER_CONFIG, source=CONFIG_FILES)
+# --cores of a local run; None where jobs get allocations of their own (a cluster executor).
+LOCAL_CORES = getattr(workflow.global_resources.get("_cores"), "value", None)
+
+
+def job_threads(wildcards):
+    """`threads` of the stages after the fit (avatar, evaluation, stitching): in a run of the
+    default target the sequences share the local cores, so their avatars train side by side;
+    a study's target (quality, sweep, ...) keeps STAGE_THREADS. (Called per job, once the
+    run's targets are known.)"""
+    default_run = set(getattr(workflow.dag_settings, "targets", ())) <= {"all"}
+    return PLAN.job_threads(LOCAL_CORES if default_run else None)
+
+
+# Job priorities: the stages up to the fit first, then avatar training, then the rest. With
+# the avatars on shared cores, none starts while a stage before a fit can run, so a fit (two
+# threads) never waits behind a one-thread avatar for a free core.
+BEFORE_AVATAR, AVATAR = 2, 1
+
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)
 SCENES = PLAN.scenes  # synthetic sequences: name -> validated scene spec
 VIDEOS = PLAN.videos  # footage: name -> sheet row

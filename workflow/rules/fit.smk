@@ -77,7 +77,8 @@ rule fit_smplx:
         f"{RESULTS}/_logs/{{scene}}/fit_smplx.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/fit_smplx.tsv"
-    threads: 2
+    priority: BEFORE_AVATAR
+    threads: STAGE_THREADS
     resources:
         mem_mb=4000,
         runtime=60,

@@ -20,6 +20,7 @@ rule extract_frames:
         f"{RESULTS}/_logs/{{scene}}/extract_frames.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/extract_frames.tsv"
+    priority: BEFORE_AVATAR
     threads: 1
     resources:
         mem_mb=2000,

@@ -86,7 +86,8 @@ rule segment:
         f"{RESULTS}/_logs/{{scene}}/segment.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/segment.tsv"
-    threads: 2
+    priority: BEFORE_AVATAR
+    threads: STAGE_THREADS
     resources:
         mem_mb=2000,
         runtime=30,
@@ -112,7 +113,8 @@ rule detect_keypoints:
         f"{RESULTS}/_logs/{{scene}}/detect_keypoints.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/detect_keypoints.tsv"
-    threads: 2
+    priority: BEFORE_AVATAR
+    threads: STAGE_THREADS
     resources:
         mem_mb=2000,
         runtime=30,
@@ -143,7 +145,8 @@ rule perception_eval:
         f"{RESULTS}/_logs/{{scene}}/perception_eval.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/perception_eval.tsv"
-    threads: 2
+    priority: BEFORE_AVATAR
+    threads: STAGE_THREADS
     resources:
         mem_mb=2000,
         runtime=15,
@@ -191,7 +194,7 @@ rule simulate_training_set:
         f"{RESULTS}/_logs/simulate_training_set.log",
     benchmark:
         f"{RESULTS}/_benchmarks/simulate_training_set.tsv"
-    threads: 2
+    threads: STAGE_THREADS
     resources:
         mem_mb=4000,
         runtime=240,
@@ -215,7 +218,7 @@ rule train_detectors:
         f"{RESULTS}/_logs/train_detectors.log",
     benchmark:
         f"{RESULTS}/_benchmarks/train_detectors.tsv"
-    threads: 2
+    threads: STAGE_THREADS
     resources:
         mem_mb=12000,
         runtime=240,

@@ -28,7 +28,8 @@ rule simulate:
         f"{RESULTS}/_logs/{{scene}}/simulate.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/simulate.tsv"
-    threads: 2
+    priority: BEFORE_AVATAR
+    threads: STAGE_THREADS
     resources:
         mem_mb=3000,
         runtime=30,

@@ -50,7 +50,7 @@ rule stitch_video:
         f"{RESULTS}/_logs/{{scene}}/stitch_video.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/stitch_video.tsv"
-    threads: 2
+    threads: job_threads
     resources:
         mem_mb=3000,
         runtime=60,
