@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from jsonschema import Draft202012Validator, validators
 from referencing import Registry, Resource
 from referencing.jsonschema import DRAFT202012 as _SPEC
 
-from signsplat.errors import SignSplatError
+from signsplat.errors import InputError, SignSplatError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SCHEMA_DIR = REPO_ROOT / "workflow" / "schemas"
@@ -131,6 +132,23 @@ def validate(data: Any, schema_name: str, source: str | os.PathLike = "<config>"
             lines.append(_describe(best if best.absolute_path else err))
         raise ConfigError(f"{source}: " + "; ".join(dict.fromkeys(lines)))
     return data
+
+
+def json_option(text: str | None, option: str = "--config-json") -> Any:
+    """The value of a command-line JSON option (None or empty: ``{}``); an
+    :class:`~signsplat.errors.InputError` naming the option when it is not JSON."""
+    if not text:
+        return {}
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{option}: not valid JSON ({exc})") from None
+
+
+def config_option(text: str | None, schema_name: str, option: str = "--config-json") -> Any:
+    """A config section given on the command line as JSON, validated against
+    ``schema_name`` (defaults filled in); errors name ``option``."""
+    return validate(json_option(text, option), schema_name, option)
 
 
 def schema_defaults(schema_name: str, *keys: str) -> Any:

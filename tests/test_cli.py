@@ -41,3 +41,20 @@ def test_device_selection_follows_what_torch_sees(monkeypatch, has_cuda):
             select_device("cuda")
     with pytest.raises(SignSplatError, match="unknown device 'tpu'; allowed"):
         select_device("tpu")
+
+
+@pytest.mark.parametrize("argv", [
+    ["body-model", "--out", "x.npz"],
+    ["gloss-library", "--out", "x.parquet"],
+    ["train-avatar", "--body", "b.npz", "--frames", "f.parquet", "--cameras", "c.parquet",
+     "--smplx", "s.parquet", "--out", "out"],
+])
+def test_a_config_json_that_is_not_json_is_named_in_a_message(argv, capsys, tmp_path,
+                                                               monkeypatch):
+    """Every command's --config-json goes through signsplat.config.json_option: bad JSON is a
+    one-line error naming the option, before any file is read or written."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "--config-json", "{not json"]) == 2
+    err = capsys.readouterr().err
+    assert f"signsplat {argv[0]}: error: --config-json: not valid JSON" in err, err
+    assert not any(tmp_path.iterdir())

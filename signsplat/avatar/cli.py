@@ -8,12 +8,12 @@ train-avatar writes ``checkpoint.pt`` (resumable, atomic), ``avatar.ply`` (3DGS 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
 import torch
 
+from signsplat.config import json_option
 from signsplat.device import add_runtime_args, use_runtime
 
 log = logging.getLogger("signsplat.avatar")
@@ -36,7 +36,7 @@ def _setup(args):
     from signsplat.body.model import BodyModel
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = avatar_config(json.loads(args.config_json), "--config-json")
+    cfg = avatar_config(json_option(args.config_json), "--config-json")
     device = use_runtime(args)
     body = BodyModel.from_file(args.body).to(device)
     data = load_scene(args.frames, args.cameras, args.smplx, cfg.train.resolution)
@@ -102,7 +102,7 @@ def evaluate_avatar(argv: list[str]) -> int:
     args = p.parse_args(argv)
     cfg, device, body, data = _setup(args)
     out = Path(args.out)
-    eval_over = json.loads(args.config_json).get("eval")
+    eval_over = json_option(args.config_json).get("eval")
     df, views = evaluate_checkpoint(args.checkpoint, body, data, args.variant, out / "images",
                                     device=str(device), overrides=eval_over)
     write_table(df, out / "metrics.parquet", "avatar_metrics")

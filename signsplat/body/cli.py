@@ -9,12 +9,11 @@ file is loaded, checked (keys, shapes, a forward pass) and copied to ``--out``.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import time
 from pathlib import Path
 
-from signsplat.config import validate
+from signsplat.config import config_option
 from signsplat.errors import InputError
 from signsplat.io.atomic import atomic_path
 
@@ -27,11 +26,7 @@ def body_model(argv: list[str]) -> int:
                         help="the body_model config section as JSON")
     parser.add_argument("--out", required=True, help="output .npz path")
     args = parser.parse_args(argv)
-    try:
-        cfg = json.loads(args.config_json)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    cfg = validate(cfg, "stages/body_model.schema.yaml", "--config-json")
+    cfg = config_option(args.config_json, "stages/body_model.schema.yaml")
 
     import torch
 

@@ -19,7 +19,7 @@ import pandas as pd
 from signsplat.colmap.compare import CompareConfig, compare_scene
 from signsplat.colmap.ply import write_points_ply
 from signsplat.device import add_runtime_args
-from signsplat.errors import InputError
+from signsplat.config import json_option
 from signsplat.io.tables import read_table, write_table
 
 
@@ -41,11 +41,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _config(text: str) -> CompareConfig:
     """The `colmap` config section, validated against its schema (defaults filled in)."""
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    return CompareConfig.from_dict(data, "--config-json")
+    return CompareConfig.from_dict(json_option(text), "--config-json")
 
 
 def colmap_compare(argv: list[str]) -> int:

@@ -4,11 +4,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
-from signsplat.config import validate
-from signsplat.errors import InputError
+from signsplat.config import config_option
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,11 +45,7 @@ def fit(argv: list[str]) -> int:
 
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    try:
-        cfg_in = json.loads(args.config_json)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    cfg = validate(cfg_in, "stages/fit.schema.yaml", "--config-json")
+    cfg = config_option(args.config_json, "stages/fit.schema.yaml")
     torch.set_num_threads(max(1, args.threads))
     fit_scene(cfg, args.out_dir, args.keypoints, args.calibration, args.body,
               frames=args.frames, masks=args.masks, gt_smplx=args.gt_smplx,

@@ -11,7 +11,7 @@ from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
-from signsplat.config import validate
+from signsplat.config import config_option
 from signsplat.device import add_runtime_args
 from signsplat.io.tables import write_table
 from signsplat.perception.detectors import DETECTORS, detector_specs, specs
@@ -21,8 +21,7 @@ SCHEMA = "stages/perception.schema.yaml"
 
 def perception_config(text: str | None) -> dict:
     """The ``perception`` section from JSON text, validated, defaults filled in."""
-    data = json.loads(text) if text else {}
-    return validate(data, SCHEMA, "--config-json")
+    return config_option(text, SCHEMA)
 
 
 def _parser(prog: str, doc: str) -> argparse.ArgumentParser:

@@ -58,6 +58,23 @@ def _read_frames(rows: pd.DataFrame, base: Path) -> tuple[list, list[str]]:
     return images, bad
 
 
+def _readable_batches(frames: pd.DataFrame, base: Path, size: int, bad: list[str],
+                      timings: dict[str, float], desc: str, progress: bool):
+    """``frames`` in batches of ``size``: ``(chunk, images, good)``, ``good`` the positions
+    of the images that could be read (``None`` in ``images`` elsewhere). Unreadable frames go
+    to ``bad``, the reading time to ``timings["read"]``; a progress bar ``desc`` on stderr."""
+    with tqdm(total=len(frames), desc=desc, unit="frame", disable=not progress,
+              file=sys.stderr) as bar:
+        for idx in _batches(len(frames), size):
+            chunk = frames.iloc[list(idx)]
+            t0 = time.perf_counter()
+            images, errs = _read_frames(chunk, base)
+            timings["read"] += time.perf_counter() - t0
+            bad += errs
+            yield chunk, images, [i for i, im in enumerate(images) if im is not None]
+            bar.update(len(chunk))
+
+
 def _finish(report: StageReport, skip_bad: bool, stage: str) -> StageReport:
     if report.bad_frames:
         msg = (f"{len(report.bad_frames)} frame image(s) could not be read: "
@@ -101,14 +118,8 @@ def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
     model = load_segmenter(spec, threads)
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
     rows, bad, people = [], [], []
-    bar = tqdm(total=len(frames), desc="segment", unit="frame", disable=not progress,
-               file=sys.stderr)
-    for idx in _batches(len(frames), spec.batch_size):
-        chunk = frames.iloc[list(idx)]
-        t0 = time.perf_counter()
-        images, errs = _read_frames(chunk, frames_path.parent)
-        bad += errs
-        good = [i for i, im in enumerate(images) if im is not None]
+    for chunk, images, good in _readable_batches(frames, frames_path.parent, spec.batch_size,
+                                                 bad, t, "segment", progress):
         t1 = time.perf_counter()
         alphas = segment_batch(model, spec, [images[i] for i in good]) if good else []
         t2 = time.perf_counter()
@@ -124,11 +135,8 @@ def segment_sequence(frames_path: str | os.PathLike, out_dir: str | os.PathLike,
             rows.append((r["scene"], int(r["view"]), int(r["frame"]), rel, st["area"],
                          *st["box"], st["confidence"]))
         t3 = time.perf_counter()
-        t["read"] += t1 - t0
         t["model"] += t2 - t1
         t["write"] += t3 - t2
-        bar.update(len(chunk))
-    bar.close()
     df = pd.DataFrame(rows, columns=["scene", "view", "frame", "mask", "area", "x0", "y0", "x1",
                                      "y1", "confidence"])
     df = df.astype({"view": "int32", "frame": "int32", "area": "int64", "x0": "float32",
@@ -239,21 +247,15 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
                 [[r["hip_x"], r["hip_y"]], [r["scale_x"], r["scale_y"]]], np.float64)
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
     keys, xys, scs = [], [], []
-    bar = tqdm(total=len(frames), desc="keypoints", unit="frame", disable=not progress,
-               file=sys.stderr)
-    for idx in _batches(len(frames), kp.batch_size):
-        chunk = frames.iloc[list(idx)]
-        t0 = time.perf_counter()
-        images, errs = _read_frames(chunk, frames_path.parent)
-        bad += errs
-        good = [i for i, im in enumerate(images) if im is not None]
+    for chunk, images, good in _readable_batches(frames, frames_path.parent, kp.batch_size,
+                                                 bad, t, "keypoints", progress):
+        t1 = time.perf_counter()
         boxes = []
         for i in good:
             b = chunk.iloc[i][["x0", "y0", "x1", "y1"]].to_numpy(np.float64)
             small = chunk.iloc[i]["area"] < kp.min_area
             boxes.append(None if small or not np.all(np.isfinite(b)) or b[2] <= b[0]
                          or b[3] <= b[1] else b)
-        t1 = time.perf_counter()
         if good:
             keys_good = [(int(chunk.iloc[i]["view"]), int(chunk.iloc[i]["frame"])) for i in good]
             people = [chosen.get(key) for key in keys_good] if persons_path is not None else None
@@ -265,9 +267,6 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
                 xys.append(xy[j])
                 scs.append(sc[j])
         t["model"] += time.perf_counter() - t1
-        t["read"] += t1 - t0
-        bar.update(len(chunk))
-    bar.close()
     t0 = time.perf_counter()
     xys, scs = _finish_views(kp, keys, xys, scs)
     t["model"] += time.perf_counter() - t0

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import logging
 import re
 import time
 from pathlib import Path
 
-from signsplat.config import REPO_ROOT, validate
+from signsplat.config import REPO_ROOT, config_option
 from signsplat.errors import InputError
 from signsplat.io.atomic import write_bytes_atomic
 
@@ -89,11 +88,7 @@ def sign(argv: list[str]) -> int:
     )
     from signsplat.stitch.text import load_pipeline, load_rules, sentence_to_glosses
 
-    try:
-        cfg = json.loads(args.config_json)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"--config-json: not valid JSON ({exc})") from None
-    cfg = validate(cfg, "stages/stitch.schema.yaml", "--config-json")
+    cfg = config_option(args.config_json, "stages/stitch.schema.yaml")
     if args.id is not None and len(args.id) != len(args.sentence):
         raise InputError(f"{len(args.id)} --id for {len(args.sentence)} sentence(s)")
     if args.avatar and not args.body:

@@ -3,18 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 
-from signsplat.config import validate
+from signsplat.config import config_option, json_option, validate
 from signsplat.device import add_runtime_args
 from signsplat.errors import InputError
-
-
-def _json_arg(text: str, what: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{what}: not valid JSON ({exc})") from None
 
 
 def _simulator_parser(prog: str, description: str, glosses_required: bool):
@@ -37,7 +29,7 @@ def simulate(argv: list[str]) -> int:
 
     from signsplat.synth.simulate import simulate_scene
 
-    scene = validate(_json_arg(args.scene_json, "--scene-json"), "scene.schema.yaml",
+    scene = validate(json_option(args.scene_json, "--scene-json"), "scene.schema.yaml",
                      "--scene-json")
     summary = simulate_scene(scene, args.body, args.glosses, args.out, threads=args.threads,
                              progress=not args.no_progress)
@@ -60,8 +52,7 @@ def gloss_library(argv: list[str]) -> int:
 
     from signsplat.synth.glosses import write_gloss_library
 
-    cfg = validate(_json_arg(args.config_json, "--config-json"),
-                   "stages/gloss_library.schema.yaml", "--config-json")
+    cfg = config_option(args.config_json, "stages/gloss_library.schema.yaml")
     write_gloss_library(args.out, seed=int(cfg["seed"]), fps=float(cfg["fps"]))
     print(f"wrote gloss library {args.out}")
     return 0
