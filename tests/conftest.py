@@ -1,29 +1,41 @@
 """Session-wide assets shared by every test package: the procedural proxy body model and the
-synthetic gloss library, each built once per test session."""
+synthetic gloss library, each built once per test session (once for all of make test's
+workers: tests/workflow_runs.shared_once)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+from workflow_runs import shared_once
+
+
+def _write_proxy_body(folder: Path) -> str:
+    from signsplat.body.proxy import write_proxy_model
+
+    folder.mkdir(parents=True, exist_ok=True)
+    write_proxy_model(folder / "body.npz", seed=0)
+    return str(folder / "body.npz")
+
+
+def _write_gloss_library(folder: Path) -> str:
+    from signsplat.synth.glosses import write_gloss_library
+
+    folder.mkdir(parents=True, exist_ok=True)
+    write_gloss_library(folder / "glosses.parquet", seed=0, fps=25.0)
+    return str(folder / "glosses.parquet")
 
 
 @pytest.fixture(scope="session")
 def proxy_body_path(tmp_path_factory):
     """The proxy SMPL-X body (seed 0) written once as an official-layout ``.npz``."""
-    from signsplat.body.proxy import write_proxy_model
-
-    path = tmp_path_factory.mktemp("body_assets") / "body.npz"
-    write_proxy_model(path, seed=0)
-    return path
+    return Path(shared_once(tmp_path_factory, "proxy_body", _write_proxy_body))
 
 
 @pytest.fixture(scope="session")
 def gloss_library_path(tmp_path_factory):
     """The synthetic gloss library (seed 0, 25 fps) written once as a Parquet table."""
-    from signsplat.synth.glosses import write_gloss_library
-
-    path = tmp_path_factory.mktemp("gloss_assets") / "glosses.parquet"
-    write_gloss_library(path, seed=0, fps=25.0)
-    return path
+    return Path(shared_once(tmp_path_factory, "gloss_library", _write_gloss_library))
 
 
 @pytest.fixture(scope="session")

@@ -23,7 +23,7 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
-from workflow_runs import shared_once, snakemake, tiny_config, tiny_local_run
+from workflow_runs import TINY_THREADS, shared_once, snakemake, tiny_config, tiny_local_run
 
 from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args,
                             slurm_env)
@@ -38,7 +38,7 @@ def _slurm_run(work: Path) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     cfg = tiny_config(work)
     t0 = time.time()
-    res = snakemake("--configfile", str(cfg), *slurm_args(work / "slurm_logs"),
+    res = snakemake("--configfile", str(cfg), *TINY_THREADS, *slurm_args(work / "slurm_logs"),
                     env=fault_env(FAULT, work / "fault"))
     log = res.stdout + res.stderr
     assert res.returncode == 0, log[-6000:]
@@ -114,6 +114,7 @@ def test_perception_ran_as_one_slurm_job_per_sequence(slurm_run):
     assert not heads["comment"].str.match(r"rule_(segment|detect_keypoints|perception_eval)_")\
         .any(), "a perception rule ran as its own SLURM job"
     steps = slurm_run.sacct[slurm_run.sacct["step"].str.fullmatch(r"\d+")]
+    want_cpus = max(j["threads"] for j in members)
     want_mem = max(float(j["resources"]["mem_mb"]) for j in members)
     want_time = sum(float(j["resources"]["runtime"]) for j in members) / len(scenes)
     seen = set()
@@ -123,7 +124,7 @@ def test_perception_ran_as_one_slurm_job_per_sequence(slurm_run):
         assert len(mine) == 3 and (mine["state"] == "COMPLETED").all()  # one step per rule
         # the three rules of one chain run one after the other: the CPUs of one rule, the
         # memory of the largest, the time of all three
-        assert g["alloc_cpus"] == 2 and g["req_mem_mb"] == want_mem
+        assert g["alloc_cpus"] == want_cpus and g["req_mem_mb"] == want_mem
         assert g["time_limit_min"] == want_time
         text = next((slurm_run.work / "slurm_logs").rglob(f"{job_id}.log")).read_text()
         ran = re.findall(r"^localrule (\w+):\n(?:    .*\n)*?    wildcards: scene=(\w+)", text,

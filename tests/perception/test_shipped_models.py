@@ -25,25 +25,21 @@ BODY, LEFT_HAND = list(KP_BODY), list(KP_LEFT_HAND)
 
 
 @pytest.fixture(scope="module")
-def held_out(tmp_path_factory, shipped):
+def held_out(tmp_path_factory, shipped, proxy_body_path, gloss_library_path):
     """Accuracy rows of both stages on freshly simulated evaluation scenes (config/scenes:
     'single' 40 frames, 'studio6' its whole 60 frames x 6 views, as the workflow evaluates it:
     its first frames are the hardest for the right hand, 0.79 over the first 8 against 0.87 over
     all 60), which training never sees."""
     import pandas as pd
 
-    from signsplat.body.proxy import write_proxy_model
     from signsplat.config import load_scene, validate
     from signsplat.perception.evaluate import accuracy
     from signsplat.perception.stages import detect_sequence, segment_sequence
-    from signsplat.synth.glosses import write_gloss_library
     from signsplat.synth.simulate import simulate_scene
 
     seg, _, kp, _ = shipped
     root = tmp_path_factory.mktemp("held_out")
-    body, glosses = root / "body.npz", root / "glosses.parquet"
-    write_proxy_model(body, seed=0)
-    write_gloss_library(glosses, seed=0, fps=25.0)
+    body, glosses = proxy_body_path, gloss_library_path
     rows = []
     for name, frames in (("single", 40), ("studio6", 60)):
         spec = load_scene(ROOT / "config" / "scenes" / f"{name}.yaml")
