@@ -18,8 +18,8 @@ import pandas as pd
 
 from signsplat.colmap.compare import CompareConfig, compare_scene
 from signsplat.colmap.ply import write_points_ply
-from signsplat.device import add_runtime_args
 from signsplat.config import json_option
+from signsplat.device import add_runtime_args
 from signsplat.io.tables import read_table, write_table
 
 

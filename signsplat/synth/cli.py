@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from signsplat.config import config_option, json_option, validate
+from signsplat.config import config_option
 from signsplat.device import add_runtime_args
 from signsplat.errors import InputError
 
@@ -29,8 +29,7 @@ def simulate(argv: list[str]) -> int:
 
     from signsplat.synth.simulate import simulate_scene
 
-    scene = validate(json_option(args.scene_json, "--scene-json"), "scene.schema.yaml",
-                     "--scene-json")
+    scene = config_option(args.scene_json, "scene.schema.yaml", "--scene-json")
     summary = simulate_scene(scene, args.body, args.glosses, args.out, threads=args.threads,
                              progress=not args.no_progress)
     print(f"simulated scene '{summary['scene']}': {summary['views']} view(s) x "
