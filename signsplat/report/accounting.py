@@ -11,6 +11,9 @@ job step by two facts:
   ``rule_<rule>_wildcards_<values joined by _>`` (``rule_<rule>`` without wildcards) and a group
   job with ``rule_<group>_<its rules joined by _>``; every rule of a job runs as one numbered
   step (``<job>.0``, ``.1``, ...);
+- the step's command line (sacct's SubmitLine) names the jobs it ran:
+  ``--target-jobs <rule>:<wildcard>=<value>,...``. Group jobs share one comment, so when two run
+  at the same time this is what tells their steps apart;
 - the rule's command writes its log file while it runs, inside that step, so the log's last
   modification lies within the step's start and end. (Not the benchmark file's: Snakemake's
   main process touches a job's outputs and benchmark file when it learns the job ended.)
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import subprocess
 from datetime import datetime, timedelta
@@ -37,7 +41,7 @@ from signsplat.report.collect import benchmark_files
 
 SACCT_FIELDS = ("JobID", "JobName", "Comment", "Partition", "Account", "ReqMem", "Timelimit",
                 "AllocCPUS", "ReqTRES", "State", "ExitCode", "Start", "End", "ElapsedRaw",
-                "TotalCPU", "MaxRSS", "WorkDir")
+                "TotalCPU", "MaxRSS", "WorkDir", "SubmitLine")
 
 JOB_COSTS = register_table(Table(
     "job_costs",
@@ -118,14 +122,41 @@ def _time(text: str) -> pd.Timestamp:
         return pd.NaT
 
 
-def sacct_table(lines: list[str]) -> pd.DataFrame:
-    """Rows of ``sacct --parsable2 --noheader --format=<SACCT_FIELDS>`` as a table: one row
-    per job and per step (``step`` = '' for the job itself, else ``batch``, ``extern``, 0, 1...)."""
+def target_key(rule: str, wildcards: dict) -> str:
+    """One Snakemake job as ``rule:name=value,...`` (names sorted), to compare a benchmarked
+    job with the ``--target-jobs`` of the SLURM step that ran it."""
+    return f"{rule}:" + ",".join(f"{k}={v}" for k, v in sorted(wildcards.items()))
+
+
+def target_jobs(submit_line: str) -> tuple[str, ...]:
+    """The jobs a Snakemake command line runs (its ``--target-jobs`` entries, as
+    ``target_key``); empty when the line names none (or sacct has no SubmitLine)."""
+    try:  # quotes kept: Snakemake double-quotes a value that holds a comma
+        words = shlex.split(submit_line or "", posix=False)
+    except ValueError:  # an unbalanced quote: a line cut short
+        return ()
+    if "--target-jobs" not in words:
+        return ()
+    out = []
+    for word in words[words.index("--target-jobs") + 1:]:
+        if word.startswith("-"):
+            break
+        rule, _, wcs = word.strip("'").partition(":")
+        pairs = re.findall(r'(\w+)=("[^"]*"|[^,]*)', wcs)
+        out.append(target_key(rule, {k: v.strip('"') for k, v in pairs}))
+    return tuple(out)
+
+
+def sacct_table(lines: list[str], fields: tuple[str, ...] = SACCT_FIELDS) -> pd.DataFrame:
+    """Rows of ``sacct --parsable2 --noheader --format=<fields>`` as a table: one row
+    per job and per step (``step`` = '' for the job itself, else ``batch``, ``extern``, 0, 1...);
+    ``targets`` are the jobs a step's command line names (``target_jobs``)."""
     rows = []
     for line in lines:
         if not line.strip():
             continue
-        f = dict(zip(SACCT_FIELDS, line.split("|")))
+        # the last field may hold '|' itself (a command line)
+        f = dict(zip(fields, line.split("|", len(fields) - 1)))
         job, _, step = f["JobID"].partition(".")
         rows.append({
             "job": job, "step": step, "name": f["JobName"], "comment": f["Comment"],
@@ -138,11 +169,12 @@ def sacct_table(lines: list[str]) -> pd.DataFrame:
             "elapsed_s": float(f["ElapsedRaw"]) if f["ElapsedRaw"].isdigit() else np.nan,
             "cpu_s": parse_duration(f["TotalCPU"]), "max_rss_mb": parse_mem_mb(f["MaxRSS"]),
             "workdir": f.get("WorkDir", ""),
+            "targets": target_jobs(f.get("SubmitLine", "")) if step else (),
         })
     return pd.DataFrame(rows, columns=[
         "job", "step", "name", "comment", "partition", "account", "req_mem_mb",
         "time_limit_min", "alloc_cpus", "req_tres", "state", "exit_code", "start", "end",
-        "elapsed_s", "cpu_s", "max_rss_mb", "workdir"])
+        "elapsed_s", "cpu_s", "max_rss_mb", "workdir", "targets"])
 
 
 def query_sacct(since: datetime | None = None, name: str | None = None,
@@ -154,15 +186,19 @@ def query_sacct(since: datetime | None = None, name: str | None = None,
     if exe is None:
         return None
     since = since or datetime.now() - timedelta(days=2)
-    cmd = [exe, "--parsable2", "--noheader", f"--format={','.join(SACCT_FIELDS)}",
-           f"--starttime={since:%Y-%m-%dT%H:%M:%S}", "--endtime=now"]
-    if name:
-        cmd.append(f"--name={name}")
-    try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=True).stdout
-    except (subprocess.SubprocessError, OSError):
-        return None
-    return sacct_table(out.splitlines())
+    # an older sacct without SubmitLine is asked again without it (matching then goes by time)
+    for fields in (SACCT_FIELDS, SACCT_FIELDS[:-1]):
+        cmd = [exe, "--parsable2", "--noheader", f"--format={','.join(fields)}",
+               f"--starttime={since:%Y-%m-%dT%H:%M:%S}", "--endtime=now"]
+        if name:
+            cmd.append(f"--name={name}")
+        try:
+            out = subprocess.run(cmd, capture_output=True, text=True, timeout=60,
+                                 check=True).stdout
+        except (subprocess.SubprocessError, OSError):
+            continue
+        return sacct_table(out.splitlines(), fields)
+    return None
 
 
 # --- benchmark files ----------------------------------------------------------------------------
@@ -241,7 +277,7 @@ def _split_patterns(patterns: dict) -> tuple[dict[str, str], dict[str, str]]:
 def benchmark_jobs(bench_dir: str | Path, patterns: dict | None = None) -> pd.DataFrame:
     """One row per benchmark file (mean over its repeats): rule, wildcards, seconds,
     cpu_seconds, max_rss_mb; ``values`` (the wildcard values in pattern order, for matching
-    SLURM comments) and ``written`` (when the job's command last wrote its log; the benchmark
+    SLURM comments), ``target`` (``target_key``) and ``written`` (when the job's command last wrote its log; the benchmark
     file's modification time when the rule has no log pattern or the log is missing)."""
     bench_dir = Path(bench_dir)
     patterns, logs = _split_patterns(patterns or {})
@@ -257,10 +293,10 @@ def benchmark_jobs(bench_dir: str | Path, patterns: dict | None = None) -> pd.Da
             if log is not None and log.is_file():
                 written = log
         rows.append({"rule": rule, "wildcards": ",".join(f"{k}={v}" for k, v in wc.items()),
-                     **means, "values": list(wc.values()),
+                     **means, "values": list(wc.values()), "target": target_key(rule, wc),
                      "written": pd.Timestamp(datetime.fromtimestamp(written.stat().st_mtime))})
     return pd.DataFrame(rows, columns=["rule", "wildcards", "seconds", "cpu_seconds",
-                                       "max_rss_mb", "values", "written"])
+                                       "max_rss_mb", "values", "target", "written"])
 
 
 # --- matching -----------------------------------------------------------------------------------
@@ -281,8 +317,10 @@ def match_slurm(jobs: pd.DataFrame, sacct: pd.DataFrame | None,
     """``jobs`` (benchmark_jobs) with the sacct figures of the step that ran each job.
 
     Candidates are the steps of the SLURM jobs whose comment is the job's own (or a group
-    job's that names its rule), in ``workdir`` when given; of the steps whose start and end
-    bracket ``written`` (within ``slack_s``), the one ending closest to it wins.
+    job's that names its rule), in ``workdir`` when given, that ran this very job by their
+    command line (steps whose command line sacct did not give stay candidates); of the steps
+    whose start and end bracket ``written`` (within ``slack_s``), the one ending closest to it
+    wins.
     """
     out = jobs.copy()
     for col in _SLURM_COLUMNS:
@@ -297,7 +335,8 @@ def match_slurm(jobs: pd.DataFrame, sacct: pd.DataFrame | None,
     for i, row in jobs.iterrows():
         own = slurm_comment(row["rule"], row["values"])
         ok = [j for j, c in heads["comment"].items() if c == own or _is_group_of(c, row["rule"])]
-        cand = steps[steps["job"].isin(ok) & (steps["start"] - slack <= row["written"])
+        ran_it = steps["targets"].map(lambda t: not t or row["target"] in t)
+        cand = steps[steps["job"].isin(ok) & ran_it & (steps["start"] - slack <= row["written"])
                      & (steps["end"] + slack >= row["written"])]
         if not len(cand):
             continue
@@ -329,7 +368,7 @@ def job_costs(results: str | Path, patterns: dict | None = None,
         matched = match_slurm(jobs, sacct, workdir=os.getcwd())
     else:
         matched = match_slurm(jobs, sacct if isinstance(sacct, pd.DataFrame) else None)
-    return matched.drop(columns=["values", "written"])[list(JOB_COSTS.columns)]
+    return matched.drop(columns=["values", "target", "written"])[list(JOB_COSTS.columns)]
 
 
 def rule_costs(jobs: pd.DataFrame) -> pd.DataFrame:

@@ -39,9 +39,9 @@ def _job(root, rel, seconds, cpu, rss, log_time):
 
 
 def _line(job, name, comment, state, start, end, elapsed, cpu="00:01.000", rss="",
-          partition="main", mem="2000M", limit="01:15:00", cpus="2", tres=""):
+          partition="main", mem="2000M", limit="01:15:00", cpus="2", tres="", submit=""):
     return "|".join([job, name, comment, partition, "signsplat", mem, limit, cpus, tres, state,
-                     "0:0", start, end, str(elapsed), cpu, rss, "/repo"])
+                     "0:0", start, end, str(elapsed), cpu, rss, "/repo", submit])
 
 
 @pytest.fixture
@@ -134,6 +134,43 @@ def test_each_job_is_matched_to_the_step_that_ran_it(run):
     assert train["partition"] == "gpu" and train["slurm_cpu_s"] == 3723
     assert train["slurm_max_rss_mb"] == 1536
     assert np.isnan(jobs.loc[("evaluate_avatar", "scene=tiny,variant=demo"), "slurm_cpu_s"])
+
+
+def _step_line(job, start, end, target):
+    submit = ("srun -n1 --cpu-bind=q --cpus-per-task=1 /repo/.venv/bin/python -m snakemake "
+              f"--snakefile /repo/Snakefile --target-jobs {target} --allowed-rules segment "
+              "--cores all --wrap-a|pipe")  # a '|' inside the last field
+    return _line(job, "python", "", "COMPLETED", start, end, 9, submit=submit)
+
+
+def test_group_jobs_at_the_same_time_are_told_apart_by_their_command_lines(tmp_path,
+                                                                           monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    root = tmp_path / R
+    # two sequences' perception groups side by side: by time alone both logs are nearest to 8.0
+    _job(root, "tiny2/segment", 8.0, 1.0, 300.0, "2026-11-26T07:00:09.2")
+    _job(root, "tiny3/segment", 8.0, 1.0, 300.0, "2026-11-26T07:00:08.9")
+    group = "rule_perception_detect_keypoints_perception_eval_segment"
+    head = dict(state="COMPLETED", start="2026-11-26T06:59:58", end="2026-11-26T07:00:12",
+                elapsed=14)
+    lines = [_line("7", "u1", group, **head), _line("8", "u1", group, **head),
+             _step_line("7.0", "2026-11-26T07:00:00", "2026-11-26T07:00:10",
+                        "segment:scene=tiny2"),
+             _step_line("8.0", "2026-11-26T07:00:00", "2026-11-26T07:00:09",
+                        "'segment:scene=tiny3'")]
+    sacct = A.sacct_table(lines)
+    assert sacct["targets"].tolist() == [(), (), ("segment:scene=tiny2",),
+                                         ("segment:scene=tiny3",)]
+    jobs = A.job_costs(root, PATTERNS, sacct).set_index("wildcards")
+    assert jobs["slurm_job"].to_dict() == {"scene=tiny2": "7.0", "scene=tiny3": "8.0"}
+
+
+def test_the_jobs_a_command_line_runs():
+    line = ("srun -n1 python -m snakemake --target-jobs 'train_avatar:scene=tiny,variant=demo' "
+            'stitch:sentence="a,b" --allowed-rules train_avatar stitch')
+    assert A.target_jobs(line) == ("train_avatar:scene=tiny,variant=demo", "stitch:sentence=a,b")
+    assert A.target_jobs("sbatch --wrap 'python -m snakemake --target-jobs 'x") == ()
+    assert A.target_jobs("") == () and A.target_key("r", {"b": 1, "a": 2}) == "r:a=2,b=1"
 
 
 def test_rule_costs_sum_time_and_take_the_largest_memory(run):
