@@ -277,8 +277,9 @@ def _split_patterns(patterns: dict) -> tuple[dict[str, str], dict[str, str]]:
 def benchmark_jobs(bench_dir: str | Path, patterns: dict | None = None) -> pd.DataFrame:
     """One row per benchmark file (mean over its repeats): rule, wildcards, seconds,
     cpu_seconds, max_rss_mb; ``values`` (the wildcard values in pattern order, for matching
-    SLURM comments), ``target`` (``target_key``) and ``written`` (when the job's command last wrote its log; the benchmark
-    file's modification time when the rule has no log pattern or the log is missing)."""
+    SLURM comments), ``target`` (``target_key``, for matching a step's command line) and
+    ``written`` (when the job's command last wrote its log; the benchmark file's modification
+    time when the rule has no log pattern or the log is missing)."""
     bench_dir = Path(bench_dir)
     patterns, logs = _split_patterns(patterns or {})
     rows = []
