@@ -4,7 +4,9 @@
         [--baseline-args="-q --durations=40"] [--args="-q -n 2 --dist worksteal --durations=40"]
 
 Each checkout runs its own tests with its own library on the path (PYTHONPATH = the checkout),
-with this interpreter. Prints and appends one row per run to
+with this interpreter; where the baseline pinned another version of a dependency, install that
+version into a folder (`pip install --no-deps --target DIR pkg==x`) and pass it with
+--baseline-path DIR (put before the checkout on the baseline's PYTHONPATH). Prints and appends one row per run to
 benchmarks/results/test_suite.parquet (pytest's output of each run goes to
 /tmp/signsplat-bench/test_suite-LABEL.log): label, commit, args, wall_s, cpu_user_s, cpu_sys_s,
 passed, failed, skipped, load_before (1-minute load average when the run started).
@@ -42,8 +44,8 @@ def _count(summary: str, word: str) -> int:
     return int(match.group(1)) if match else 0
 
 
-def run_suite(label: str, checkout: Path, args: list[str]) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(checkout))
+def run_suite(label: str, checkout: Path, args: list[str], path: list[str] = ()) -> dict:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([*path, str(checkout)]))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     load = os.getloadavg()[0]
     start = time.perf_counter()
@@ -78,12 +80,16 @@ def main() -> None:
                         help="pytest arguments for this checkout (make test's)")
     parser.add_argument("--baseline-args", default=None,
                         help="pytest arguments for the baseline (default: --args)")
+    parser.add_argument("--baseline-path", action="append", default=[],
+                        help="a folder put first on the baseline's PYTHONPATH (the dependency "
+                             "versions it pinned); may be repeated")
     opts = parser.parse_args()
     runs = [
-        ("current", ROOT, shlex.split(opts.args)),
-        ("baseline", opts.baseline.resolve(), shlex.split(opts.baseline_args or opts.args)),
+        ("current", ROOT, shlex.split(opts.args), []),
+        ("baseline", opts.baseline.resolve(), shlex.split(opts.baseline_args or opts.args),
+         opts.baseline_path),
     ]
-    rows = [run_suite(label, path, args) for label, path, args in runs]
+    rows = [run_suite(label, path, args, extra) for label, path, args, extra in runs]
     table = pd.DataFrame(rows)
     if OUT.exists():
         table = pd.concat([pd.read_parquet(OUT), table], ignore_index=True)
