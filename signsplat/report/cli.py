@@ -45,10 +45,14 @@ def _html(argv: list[str]) -> int:
     p.add_argument("--fit-suite", default=None,
                    help="the fit suite's table (benchmarks/fit_suite.py writes "
                         "benchmarks/results/fit_suite.parquet): a section for it when it exists")
+    p.add_argument("--avatar-fronts", default=None,
+                   help="the avatar's front before and after a change "
+                        "(benchmarks/bench_avatar_fronts.py writes "
+                        "benchmarks/results/avatar_fronts.parquet): shown when it exists")
     a = p.parse_args(argv)
     patterns = json.loads(a.benchmarks_json) if a.benchmarks_json else None
     out = write_report(a.results, a.out, a.scenes_dir, a.demo, a.title, a.tables, patterns,
-                       a.fit_suite)
+                       a.fit_suite, a.avatar_fronts)
     print(f"report: {Path(out).resolve()}")
     return 0
 

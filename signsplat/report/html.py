@@ -451,13 +451,26 @@ def ablation_section(res: Results, assets: Assets) -> Section:
     return sec
 
 
-def sweep_section(res: Results, assets: Assets, demo: str) -> Section:
+def sweep_section(res: Results, assets: Assets, demo: str,
+                  fronts: str | Path | None = None) -> Section:
+    """The sweep of each sequence that ran it; with ``fronts`` (an ``avatar_fronts`` table,
+    benchmarks/bench_avatar_fronts.py) also the front before and after a change."""
     sec = Section("sweep", "7. Accuracy versus time",
                   "Each point is one setting (iterations, training resolution or point budget "
                   "changed from the sweep centre); x: training wall-clock seconds from the "
                   "Snakemake benchmark files; y: novel-pose PSNR / SSIM evaluated at the native "
                   "image size. Red: the Pareto front (no other setting is both faster and at "
                   "least as good). Star: the `make demo` configuration.")
+    if fronts is not None and Path(fronts).exists():
+        f = pd.read_parquet(fronts)
+        path = plots.avatar_fronts(f, assets.path("avatar_fronts"))
+        codes = ", ".join(f"{c} = {g['commit'].iloc[0]}" for c, g in f.groupby("code", sort=False))
+        sec.figures.append(Figure(assets.rel(path), "The sweep's settings (ground-truth SMPL-X) "
+                                  f"trained by two versions of the code ({codes}), one after "
+                                  f"the other on one machine on {', '.join(f['measured'].unique())}"
+                                  " (benchmarks/bench_avatar_fronts.py)",
+                                  float(f["seconds"].sum()), "training seconds, both codes"))
+        sec.add_table("the front before and after (benchmark)", f)
     for name, t in res.scenes.items():
         if t.sweep is None or not len(t.sweep):
             continue
@@ -574,9 +587,12 @@ nav a{margin-right:1em}
 
 def build_sections(res: Results, report_dir: Path, demo: str = "demo",
                    benchmark_patterns: dict | None = None,
-                   fit_suite: str | Path | None = None) -> list[Section]:
+                   fit_suite: str | Path | None = None,
+                   avatar_fronts: str | Path | None = None) -> list[Section]:
     """The report's sections; with ``fit_suite`` (a ``fit_suite`` table that exists, written
-    by benchmarks/fit_suite.py) also the suite's section, its figure taken from beside it."""
+    by benchmarks/fit_suite.py) also the suite's section, its figure taken from beside it;
+    with ``avatar_fronts`` (benchmarks/bench_avatar_fronts.py) the front before and after a
+    change in the accuracy-versus-time section."""
     assets = Assets(report_dir)
     footage = [footage_section(res, assets)] if any(
         t.footage_quality is not None for t in res.scenes.values()) else []
@@ -584,7 +600,7 @@ def build_sections(res: Results, report_dir: Path, demo: str = "demo",
     sections = [scene_section(res, assets), perception_section(res), *footage,
                 fit_section(res, assets), *([fit_sweep] if fit_sweep is not None else []),
                 colmap_section(res), avatar_section(res, assets), ablation_section(res, assets),
-                sweep_section(res, assets, demo), stitch_section(res, assets),
+                sweep_section(res, assets, demo, avatar_fronts), stitch_section(res, assets),
                 runtime_section(res, assets, benchmark_patterns)]
     if fit_suite is not None:
         suite = fit_suite_section(fit_suite, assets, Path(fit_suite).with_suffix(".svg"))
@@ -616,15 +632,17 @@ def write_report(results: str | Path, out: str | Path, repo_scenes: str | Path |
                  demo: str = "demo", title: str = "SignSplat report",
                  tables_dir: str | Path | None = None,
                  benchmark_patterns: dict | None = None,
-                 fit_suite: str | Path | None = None) -> Path:
+                 fit_suite: str | Path | None = None,
+                 avatar_fronts: str | Path | None = None) -> Path:
     """Collect ``results`` and write the report to ``out`` (assets in ``out``'s folder); with
     ``tables_dir``, every table also as a TSV file there. ``benchmark_patterns`` (rule ->
     its benchmark and log file patterns) names each job's rule in the cost tables; with
     ``fit_suite`` (the suite benchmark's table, when it exists) a section for the fit's
-    generalisation suite."""
+    generalisation suite; with ``avatar_fronts`` the avatar's front before and after a change."""
     out = Path(out)
     res = collect(results, repo_scenes)
-    sections = build_sections(res, out.parent, demo, benchmark_patterns, fit_suite)
+    sections = build_sections(res, out.parent, demo, benchmark_patterns, fit_suite,
+                              avatar_fronts)
     if tables_dir is not None:
         write_tables(sections, Path(tables_dir))
     page = TEMPLATE.render(title=title, root=str(Path(results).resolve()),

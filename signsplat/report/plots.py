@@ -99,6 +99,44 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
     return _save(fig, path)
 
 
+def avatar_fronts(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim")) -> Path:
+    """Two versions of the code on one accuracy-versus-time figure (an ``avatar_fronts``
+    table): per metric a panel with each code's settings and its Pareto front as a line,
+    seconds on a log axis."""
+    metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
+    fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
+                             squeeze=False)
+    styles = {"before": ("0.45", "o", "--"), "after": ("tab:red", "s", "-")}
+    for ax, m in zip(axes[0], metrics):
+        for code, g in df.groupby("code", sort=False):
+            colour, marker, line = styles.get(code, ("tab:blue", "^", ":"))
+            d = g.dropna(subset=["seconds", m])
+            front = d[pareto_front(d["seconds"], d[m])].sort_values("seconds")
+            ax.scatter(d["seconds"], d[m], c=colour, marker=marker, s=34, zorder=3,
+                       label=f"{code} ({d['commit'].iloc[0]})" if len(d) else code)
+            ax.step(front["seconds"], front[m], where="post", color=colour, ls=line, lw=1.5,
+                    zorder=2)
+            for _, r in d.iterrows():
+                ax.annotate(str(r["setting"]), (r["seconds"], r[m]), fontsize=7,
+                            xytext=(3, 3), textcoords="offset points", color=colour)
+        if (df["seconds"] > 0).all():
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(mticker.NullFormatter())
+            ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.margins(x=0.25)
+        ax.set_xlabel("training wall-clock seconds (Snakemake benchmark)")
+        ax.set_ylabel(m.upper())
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    if not metrics:
+        axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
+    scenes = ", ".join(sorted(df["scene"].unique())) if "scene" in df else ""
+    when = ", ".join(sorted(df["measured"].unique())) if "measured" in df else ""
+    fig.suptitle(f"{scenes}: the accuracy-versus-time front before and after (one machine, "
+                 f"{when})")
+    return _save(fig, path)
+
+
 def regularizer_tradeoff(df: pd.DataFrame, path: Path, title: str = "") -> Path:
     """The regulariser's weight sweep: novel-view PSNR against novel-pose PSNR, one line per
     training budget through its scales (labelled), and PSNR of each split against the scale."""

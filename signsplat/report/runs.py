@@ -69,6 +69,23 @@ SWEEP_TABLE = register_table(Table(
     extra_columns=True,
 ))
 
+FRONTS_TABLE = register_table(Table(
+    "avatar_fronts",
+    "The sweep's settings (ground-truth SMPL-X, demo left out) trained by two versions of the "
+    "code one after the other on one machine (benchmarks/bench_avatar_fronts.py): one row per "
+    "(code, setting).",
+    {"code": "str before | after",
+     "commit": "str the commit that trained it",
+     "measured": "str the date of the run (YYYY-MM-DD)",
+     "scene": "str the sequence",
+     "variant": "str the avatar variant trained (results/{scene}/avatar/{variant})",
+     "setting": "str the sweep axis and value changed from its centre, or centre",
+     **{k: v for k, v in _SCORES.items() if k != "smplx_source"},
+     "seconds": "float64 the x axis: training wall-clock seconds (= train_seconds)",
+     "pareto_psnr": "bool on its code's Pareto front of (seconds, psnr)",
+     "pareto_ssim": "bool on its code's Pareto front of (seconds, ssim)"},
+))
+
 
 def image_scores(metrics: pd.DataFrame, split: str = "novel_pose") -> dict[str, float]:
     """PSNR / SSIM / LPIPS of the full image and the mean hand-crop PSNR of one split, under the
@@ -227,6 +244,27 @@ def sweep_table(results: Path, scene: str, settings: dict[str, dict]) -> pd.Data
     df["pareto_psnr"] = pareto_front(df["seconds"], df["psnr"])
     df["pareto_ssim"] = pareto_front(df["seconds"], df["ssim"])
     return df
+
+
+def fronts_table(points: pd.DataFrame, results: dict[str, Path]) -> pd.DataFrame:
+    """``points``: code, commit, measured, scene, variant, setting per trained setting;
+    ``results``: code -> the results folder it trained into. The scores and seconds of each
+    (``variant_row``) and each code's own Pareto fronts."""
+    from signsplat.report.plots import pareto_front
+
+    rows = []
+    for _, p in points.iterrows():
+        r = variant_row(Path(results[p["code"]]), p["scene"], p["variant"])
+        rows.append({**p.to_dict(), **{k: r[k] for k in ("psnr", "ssim", "lpips", "hand_psnr",
+                                                         "train_seconds", "eval_seconds",
+                                                         "points")}})
+    df = pd.DataFrame(rows)
+    df["seconds"] = df["train_seconds"]
+    for metric in ("psnr", "ssim"):
+        df[f"pareto_{metric}"] = False
+        for _, g in df.groupby("code", sort=False):
+            df.loc[g.index, f"pareto_{metric}"] = pareto_front(g["seconds"], g[metric])
+    return df[[c for c in FRONTS_TABLE.columns if c in df]]
 
 
 def write_parquet(df: pd.DataFrame, path: Path, table: str | None = None) -> Path:

@@ -277,3 +277,35 @@ def test_footage_section_shows_rates_reprojection_and_heldout_scores(tmp_path):
     assert float(rows["avatar demo: held-out psnr (masked)"]) == 21.0  # 24 dB minus 3
     assert float(rows["avatar demo: training seconds"]) == 895.0
     assert re.search(r'class="secs">[0-9.]+ s<', section)
+
+
+def test_fronts_before_and_after_are_each_code_s_own_and_shown_in_the_sweep_section(
+        results_dir, tmp_path):
+    """benchmarks/bench_avatar_fronts.py's table: scores and benchmark seconds per setting,
+    each code's own Pareto front (abl_full is beaten only by the other code's point), and the
+    accuracy-versus-time section draws both when the table exists."""
+    from signsplat.io.tables import write_table
+    from signsplat.report.html import Assets, sweep_section
+
+    points = pd.DataFrame(
+        [("before", "aaaa", "sw_it150", "iterations 150"), ("before", "aaaa", "abl_full", "centre"),
+         ("after", "bbbb", "abl_no_reg", "centre"), ("after", "bbbb", "demo", "iterations 1500")],
+        columns=["code", "commit", "variant", "setting"]).assign(scene="tiny",
+                                                                 measured="2026-11-27")
+    df = runs.fronts_table(points, {"before": results_dir, "after": results_dir})
+    assert df.seconds.tolist() == pytest.approx([100.0, 200.0, 190.0, 900.0])
+    assert df.psnr.tolist() == pytest.approx([20.0, 22.0, 22.5, 24.0])
+    assert df.pareto_psnr.tolist() == [True, True, True, True]
+    table = tmp_path / "avatar_fronts.parquet"
+    write_table(df, table, "avatar_fronts")  # the registered columns
+    res = collect(results_dir)
+    assets = Assets(tmp_path / "report")
+    plain = sweep_section(res, assets, "demo")
+    shown = sweep_section(res, assets, "demo", table)
+    assert len(shown.figures) == len(plain.figures) + 1
+    fig = shown.figures[0]
+    assert "before = aaaa, after = bbbb" in fig.caption and "2026-11-27" in fig.caption
+    assert fig.seconds == pytest.approx(1390.0)
+    assert (tmp_path / "report" / fig.src).stat().st_size > 5000
+    assert [c for c, _ in shown.frames][0] == "the front before and after (benchmark)"
+    assert sweep_section(res, assets, "demo", tmp_path / "none.parquet").figures == plain.figures

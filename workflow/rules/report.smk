@@ -166,12 +166,16 @@ def benchmark_patterns_json():
                     for r in workflow.rules if r.benchmark})
 
 
-# the fit's generalisation suite (benchmarks/fit_suite.py): a section when it has run
-FIT_SUITE_TABLE = Path(workflow.basedir) / "benchmarks" / "results" / "fit_suite.parquet"
+# benchmark tables the report shows when they exist: the fit's generalisation suite
+# (benchmarks/fit_suite.py) and the avatar's front before and after a change
+# (benchmarks/bench_avatar_fronts.py)
+BENCHMARK_TABLES = {"--fit-suite": "fit_suite.parquet", "--avatar-fronts": "avatar_fronts.parquet"}
 
 
-def fit_suite_arg(wildcards):
-    return f"--fit-suite '{FIT_SUITE_TABLE}'" if FIT_SUITE_TABLE.exists() else ""
+def benchmark_tables_args(wildcards):
+    folder = Path(workflow.basedir) / "benchmarks" / "results"
+    return " ".join(f"{opt} '{folder / name}'" for opt, name in BENCHMARK_TABLES.items()
+                    if (folder / name).exists())
 
 
 rule report:
@@ -183,7 +187,7 @@ rule report:
                       caption="../report/tables.rst", category="9. Tables of the report"),
     params:
         benchmarks=lambda wildcards: benchmark_patterns_json(),
-        suite=fit_suite_arg,
+        bench_tables=benchmark_tables_args,
     log:
         f"{RESULTS}/_logs/report.log",
     benchmark:
@@ -194,6 +198,6 @@ rule report:
         runtime=10,
     shell:
         "{PY} -m signsplat report html --results {RESULTS} --out {output.html:q}"
-        " --tables {output.tables:q} --benchmarks-json {params.benchmarks:q} {params.suite}"
+        " --tables {output.tables:q} --benchmarks-json {params.benchmarks:q} {params.bench_tables}"
         " > {log} 2>&1"
 
