@@ -6,10 +6,10 @@
 Each checkout runs its own tests with its own library on the path (PYTHONPATH = the checkout),
 with this interpreter; where the baseline pinned another version of a dependency, install that
 version into a folder (`pip install --no-deps --target DIR pkg==x`) and pass it with
---baseline-path DIR (put before the checkout on the baseline's PYTHONPATH). Prints and appends one row per run to
-benchmarks/results/test_suite.parquet (pytest's output of each run goes to
-/tmp/signsplat-bench/test_suite-LABEL.log): label, commit, args, wall_s, cpu_user_s, cpu_sys_s,
-passed, failed, skipped, load_before (1-minute load average when the run started).
+--baseline-path DIR (put before the checkout on the baseline's PYTHONPATH). Prints and
+appends one row per run to benchmarks/results/test_suite.parquet (pytest's output of each run
+goes to /tmp/signsplat-bench/test_suite-LABEL.log): label, commit, args, wall_s, cpu_user_s,
+cpu_sys_s, passed, failed, skipped, load_before (1-minute load average when the run started).
 """
 
 from __future__ import annotations
