@@ -46,6 +46,30 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _metric_panels(df: pd.DataFrame, metrics) -> tuple[list[str], plt.Figure, np.ndarray]:
+    """The metrics ``df`` has values for, and one panel per metric in a row."""
+    metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
+    fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
+                             squeeze=False)
+    if not metrics:
+        axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
+    return metrics, fig, axes
+
+
+def _seconds_axes(ax, seconds: pd.Series, xlabel: str, ylabel: str) -> None:
+    """A panel's seconds axis (log when every value is positive and there are two or more),
+    labels, grid and legend."""
+    if (seconds > 0).all() and len(seconds) > 1:
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # no overlapping 2x10^2...
+        ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.margins(x=0.25)  # room for the labels of the outermost points
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+
+
 def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
                      seconds="seconds", label="setting", highlight: str | None = None,
                      title: str = "",
@@ -56,7 +80,6 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
     """One panel per metric: quality against wall-clock seconds (log x), the Pareto front as a
     line, the ``highlight`` setting (the demo configuration) as a star. Metrics named in
     ``lower_is_better`` are errors: their front is the lower envelope."""
-    metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
     if "smplx_source" in df.columns and df["smplx_source"].nunique() > 1:
         # settings trained on another SMPL-X source than most are not like for like: say so
         usual = df["smplx_source"].mode().iloc[0]
@@ -67,8 +90,7 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
             highlight = next((n for v, n in zip(df[label], names) if str(v) == highlight),
                              highlight)
         df = df.assign(**{label: names})
-    fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
-                             squeeze=False)
+    metrics, fig, axes = _metric_panels(df, metrics)
     for ax, m in zip(axes[0], metrics):
         d = df[[seconds, m, label]].dropna(subset=[seconds, m])
         front = pareto_front(d[seconds], d[m], m in lower_is_better)
@@ -83,17 +105,7 @@ def accuracy_vs_time(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim"),
             h = d[d[label] == highlight]
             ax.scatter(h[seconds], h[m], marker="*", s=260, facecolor="gold",
                        edgecolor="black", label=f"{highlight_label}: {highlight}", zorder=5)
-        if (d[seconds] > 0).all() and len(d) > 1:
-            ax.set_xscale("log")
-            ax.xaxis.set_minor_formatter(mticker.NullFormatter())  # no overlapping 2x10^2...
-            ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.margins(x=0.25)  # room for the labels of the outermost points
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel((ylabels or {}).get(m, m.upper()))
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-    if not metrics:
-        axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
+        _seconds_axes(ax, d[seconds], xlabel, (ylabels or {}).get(m, m.upper()))
     if title:
         fig.suptitle(title)
     return _save(fig, path)
@@ -103,9 +115,7 @@ def avatar_fronts(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim")) -> Pat
     """Two versions of the code on one accuracy-versus-time figure (an ``avatar_fronts``
     table): per metric a panel with each code's settings and its Pareto front as a line,
     seconds on a log axis."""
-    metrics = [m for m in metrics if m in df.columns and df[m].notna().any()]
-    fig, axes = plt.subplots(1, max(1, len(metrics)), figsize=(5.2 * max(1, len(metrics)), 4),
-                             squeeze=False)
+    metrics, fig, axes = _metric_panels(df, metrics)
     styles = {"before": ("0.45", "o", "--"), "after": ("tab:red", "s", "-")}
     for ax, m in zip(axes[0], metrics):
         for code, g in df.groupby("code", sort=False):
@@ -119,17 +129,8 @@ def avatar_fronts(df: pd.DataFrame, path: Path, metrics=("psnr", "ssim")) -> Pat
             for _, r in d.iterrows():
                 ax.annotate(str(r["setting"]), (r["seconds"], r[m]), fontsize=7,
                             xytext=(3, 3), textcoords="offset points", color=colour)
-        if (df["seconds"] > 0).all():
-            ax.set_xscale("log")
-            ax.xaxis.set_minor_formatter(mticker.NullFormatter())
-            ax.xaxis.set_major_formatter(mticker.FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.margins(x=0.25)
-        ax.set_xlabel("training wall-clock seconds (Snakemake benchmark)")
-        ax.set_ylabel(m.upper())
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-    if not metrics:
-        axes[0, 0].text(0.5, 0.5, "no quality values", ha="center", va="center")
+        _seconds_axes(ax, df["seconds"].dropna(),
+                      "training wall-clock seconds (Snakemake benchmark)", m.upper())
     scenes = ", ".join(sorted(df["scene"].unique())) if "scene" in df else ""
     when = ", ".join(sorted(df["measured"].unique())) if "measured" in df else ""
     fig.suptitle(f"{scenes}: the accuracy-versus-time front before and after (one machine, "
