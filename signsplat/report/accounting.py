@@ -195,8 +195,10 @@ def query_sacct(since: datetime | None = None, name: str | None = None,
         try:
             out = subprocess.run(cmd, capture_output=True, text=True, timeout=60,
                                  check=True).stdout
+        except subprocess.CalledProcessError:
+            continue  # sacct answered with an error (an unknown field, or no accounting)
         except (subprocess.SubprocessError, OSError):
-            continue
+            return None  # it did not answer: asking again would only wait again
         return sacct_table(out.splitlines(), fields)
     return None
 
