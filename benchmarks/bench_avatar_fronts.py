@@ -16,6 +16,7 @@ has the sweep's two threads and the jobs run one at a time (``--cores``, default
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -36,11 +37,28 @@ def git(*args: str, cwd: Path = ROOT) -> str:
 
 def checkout(commit: str, work: Path, label: str) -> Path:
     """A worktree of ``commit`` (so that edits to this checkout do not reach a run); the one
-    already under ``work`` when there is one (``--collect-only`` reads what it ran)."""
+    already under ``work`` when it holds that commit."""
     src = work / f"src-{label}"
     if not src.exists():
         git("worktree", "add", "--detach", str(src), commit)
+    elif git("rev-parse", "HEAD", cwd=src) != commit:
+        raise SystemExit(f"{src} holds another commit than {commit[:10]}: remove it "
+                         f"(git worktree remove {src}) or pass another --work")
     return src
+
+
+def run_record(work: Path, label: str, rev: str, collect_only: bool) -> dict:
+    """The commit and date of ``label``'s run: written when it runs, read back by
+    ``--collect-only`` (so that a rebuilt table keeps what actually ran, and when)."""
+    path = work / label / "run.json"
+    if collect_only:
+        if not path.exists():
+            raise SystemExit(f"{path} not found: run without --collect-only first")
+        return json.loads(path.read_text())
+    record = {"commit": git("rev-parse", rev), "measured": date.today().isoformat()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record))
+    return record
 
 
 def sweep_points(src: Path, results: Path) -> list[tuple[str, str]]:
@@ -104,11 +122,13 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
-    runs = []
+    runs, records = [], []
     for label, rev in (("before", a.old), ("after", a.new)):
-        src = checkout(git("rev-parse", rev), work, label)  # kept from an earlier run
-        runs.append((label, git("rev-parse", "HEAD", cwd=src), src, work / label / "results"))
-    measured = date.today().isoformat()
+        record = run_record(work, label, rev, a.collect_only)
+        src = checkout(record["commit"], work, label)
+        runs.append((label, record["commit"], src, work / label / "results"))
+        records.append(record)
+    measured = ", ".join(sorted({r["measured"] for r in records}))
     if not a.collect_only:
         for label, _, src, results in runs:  # one after the other: each job has the cores
             seconds = run(src, results, a.cores)
