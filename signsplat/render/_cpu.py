@@ -35,6 +35,28 @@ def _n_threads(T) -> int:
     return numba.get_num_threads() if T is np.float32 else 1
 
 
+def tile_schedule(costs: np.ndarray, n_threads: int) -> np.ndarray:
+    """The order in which the compositing kernels visit the tiles (int64 indices).
+
+    Numba's OpenMP layer splits a ``prange`` into ``n_threads`` contiguous blocks of equal
+    length, whatever ``parallel_chunksize`` says, so the order decides each thread's share.
+    Tiles are taken heaviest first (``costs``: the length of each tile's list) and dealt to
+    the blocks in snake order (0, 1, ..., n-1, n-1, ..., 0, 0, ...); the lightest ``m % n``
+    go one each to the first blocks, which are one longer when ``n`` does not divide ``m``
+    (as OpenMP's static split). Each block keeps its tiles heaviest first. Every tile is
+    composited on its own, so the order changes no output.
+    """
+    order = np.argsort(-costs, kind="stable")
+    m = len(order)
+    n = max(1, min(int(n_threads), m))
+    if n == 1:
+        return order.astype(np.int64)
+    turn, seat = np.divmod(np.arange(m), n)
+    block = np.where(turn % 2 == 0, seat, n - 1 - seat)
+    block[m - m % n:] = np.arange(m % n)
+    return order[np.argsort(block, kind="stable")].astype(np.int64)
+
+
 # ----------------------------------------------------------------------------- projection
 class _Project(torch.autograd.Function):
     @staticmethod
@@ -190,12 +212,10 @@ class _Rasterize(torch.autograd.Function):
         isect_rows = np.zeros((len(flat_ids), 2), np.uint8)
         row_par = np.empty((C * N, 2), np.float64)
         K.raster_params[T](con, op, rad, T, row_par)
-        # heaviest tiles first (longest lists), so the dynamic schedule ends balanced
-        tile_order = np.argsort(-np.diff(offsets), kind="stable").astype(np.int64)
-        with numba.parallel_chunksize(1):
-            K.raster_fwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
-                            width, height, tiles_x, tiles_y, T, out_color, out_T, out_last,
-                            pairs, isect_rows, tile_order, row_par)
+        tile_order = tile_schedule(np.diff(offsets), _n_threads(T))
+        K.raster_fwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
+                        width, height, tiles_x, tiles_y, T, out_color, out_T, out_last,
+                        pairs, isect_rows, tile_order, row_par)
         if info is not None:
             info["n_isects"] = int(len(flat_ids))
             info["pairs_forward"] = int(pairs.sum())
@@ -218,10 +238,9 @@ class _Rasterize(torch.autograd.Function):
         va = _np(v_alphas)[..., 0] if v_alphas is not None else np.zeros((C, height, width), T)
         KK = 8 + D
         gbuf = np.zeros((len(flat_ids), KK), T)  # one row per (tile, Gaussian) intersection
-        with numba.parallel_chunksize(1):
-            K.raster_bwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
-                            width, height, tiles_x, tiles_y, T, out_T, out_last, isect_rows, vr,
-                            va, gbuf, tile_order)
+        K.raster_bwd[T](m2, con, col, per_cam, op, rad, bg, has_bg, offsets, flat_ids, N,
+                        width, height, tiles_x, tiles_y, T, out_T, out_last, isect_rows, vr,
+                        va, gbuf, tile_order)
         red = np.zeros((C * N, KK), T)
         K.reduce_isects(gbuf, flat_ids, red)
         red_t = torch.from_numpy(red)

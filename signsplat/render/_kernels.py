@@ -13,7 +13,8 @@ Gaussian's centre changes pixels by ~1e-4.
 Parallel layout (``prange``):
 - projection / SH: over (camera, Gaussian) or over Gaussians (backward, to reduce without races);
 - binning: over bands of tile rows, each band scanning the depth-sorted Gaussians;
-- compositing forward and backward: over (camera, tile), dynamic chunks; the backward sums the
+- compositing forward and backward: over (camera, tile), in the order ``tile_order`` gives
+  (``_cpu.tile_schedule``: one equal share of work per thread's block); the backward sums the
   per-pixel terms of each Gaussian inside the tile and writes the tile's total to the row of
   that (tile, Gaussian) intersection, and the rows are then added up per Gaussian in
   intersection order, serially: the sums do not depend on which thread took which tile, so
@@ -951,7 +952,7 @@ def raster_fwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     tthr = T(TRANSMITTANCE_THRESHOLD)
     nf = _F_ACC + max(D, 4)
     for k_ in prange(C * n_tiles):
-        tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
+        tid = np.int64(tile_order[k_])  # balanced blocks, one per thread (_cpu.tile_schedule)
         c, x0, y0 = _tile_of(tid, n_tiles, tiles_x)
         xw = min(TILE, width - x0)  # row length (a runtime trip count: vectorised, not unrolled)
         buf = np.zeros(nf * NP, dtype=T)
@@ -1078,7 +1079,7 @@ def raster_bwd(means2d, conics, colors, colors_per_camera, opacities, radii, bac
     amax = T(MAX_ALPHA)
     nf = _B_VC + max(D, 4)
     for k_ in prange(C * n_tiles):
-        tid = np.int64(tile_order[k_])  # heaviest tiles first: dynamic chunks balance the end
+        tid = np.int64(tile_order[k_])  # balanced blocks, one per thread (_cpu.tile_schedule)
         start = tile_offsets[tid]
         end = tile_offsets[tid + 1]
         if end <= start:

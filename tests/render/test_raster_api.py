@@ -266,3 +266,17 @@ def test_cpu_gradients_are_the_same_for_any_thread_count_and_run():
         two = _cpu_grads(s, 2)
         for k in one:
             assert torch.equal(one[k], two[k]), k
+
+
+@pytest.mark.parametrize("threads", [2, 3, 8])
+def test_tile_schedule_gives_every_thread_an_equal_share_of_the_work(threads):
+    # Numba's OpenMP layer hands each thread one contiguous block of the tile loop; the old
+    # heaviest-first order gave the first thread all the heavy tiles (no speed-up on two).
+    from signsplat.render._cpu import tile_schedule
+
+    costs = np.random.default_rng(3).integers(0, 100, 257)
+    order = tile_schedule(costs, threads)
+    assert order.dtype == np.int64 and sorted(order.tolist()) == list(range(len(costs)))
+    loads = [costs[block].sum() for block in np.array_split(order, threads)]
+    assert max(loads) - min(loads) <= costs.max(), loads
+    assert tile_schedule(costs, 1).tolist() == np.argsort(-costs, kind="stable").tolist()
