@@ -36,28 +36,3 @@ def test_lists_become_tuples_and_parts_dataclasses():
 def test_a_bad_key_is_named():
     with pytest.raises(ConfigError, match="regularise"):
         avatar_config({"regularise": {"enabled": False}})
-
-
-# The quality profile's measured runs: each length resumed the one before it (2400 steps from
-# scratch, then 3600, then 4800), which is one uninterrupted run of the profile only if every
-# step-dependent schedule of the profile agrees with its predecessors' up to their last step.
-QUALITY_PREDECESSORS = [(2400, 0.75), (3600, 0.5)]  # (iterations, sh_schedule.rise_at)
-
-
-@pytest.mark.parametrize("iterations, rise_at", QUALITY_PREDECESSORS)
-def test_quality_profile_runs_its_measured_predecessors_unchanged(iterations, rise_at):
-    from signsplat.avatar.model import sh_degree_at
-    from signsplat.avatar.train import lr_factor
-
-    now = avatar_config({"profile": "quality"})
-    before = avatar_config({"profile": "quality", "train": {"iterations": iterations},
-                            "sh_schedule": {"rise_at": rise_at}})
-    assert now.train.iterations >= iterations
-    for step in range(1, iterations + 1):
-        assert sh_degree_at(step, now.train.iterations, now.model.sh_degree,
-                            now.sh_schedule.rise_at) == \
-            sh_degree_at(step, iterations, before.model.sh_degree, rise_at), step
-        assert lr_factor(step, now.train.iterations, now.train.lr_final_fraction) == \
-            lr_factor(step, iterations, before.train.lr_final_fraction), step
-    assert now.strategy.refine_stop <= iterations and now.strategy == before.strategy
-    assert now.train.refine_cameras_stop <= iterations
