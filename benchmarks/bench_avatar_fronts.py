@@ -73,8 +73,7 @@ def sweep_points(src: Path, results: Path) -> list[tuple[str, str]]:
     return sorted({p for p in found if p[1] != "demo"})
 
 
-def run(src: Path, results: Path, cores: int) -> float:
-    points = sweep_points(src, results)
+def run(src: Path, results: Path, points: list[tuple[str, str]], cores: int) -> float:
     targets = [str(results / s / "eval" / v / "metrics.parquet") for s, v in points]
     print(f"{src}: {', '.join(v for _, v in points)}", flush=True)
     t0 = time.time()
@@ -91,15 +90,15 @@ def setting(variant: str) -> str:
     return f"{m.group(1)} {m.group(2)}" if m else "centre"
 
 
-def collect(runs: list[tuple[str, str, Path, Path]], measured: str):
+def collect(runs: list[tuple[str, str, Path, Path, list[tuple[str, str]]]], measured: str):
     import pandas as pd
 
     from signsplat.report.plots import avatar_fronts
     from signsplat.report.runs import FRONTS_TABLE, fronts_table, write_parquet
 
     rows = []
-    for label, commit, src, results in runs:
-        for scene, variant in sweep_points(src, results):
+    for label, commit, _, _, points in runs:
+        for scene, variant in points:
             rows.append({"code": label, "commit": commit[:10], "measured": measured,
                          "scene": scene, "variant": variant, "setting": setting(variant)})
     df = fronts_table(pd.DataFrame(rows), {r[0]: r[3] for r in runs})
@@ -126,12 +125,13 @@ def main(argv=None) -> int:
     for label, rev in (("before", a.old), ("after", a.new)):
         record = run_record(work, label, rev, a.collect_only)
         src = checkout(record["commit"], work, label)
-        runs.append((label, record["commit"], src, work / label / "results"))
+        results = work / label / "results"
+        runs.append((label, record["commit"], src, results, sweep_points(src, results)))
         records.append(record)
     measured = ", ".join(sorted({r["measured"] for r in records}))
     if not a.collect_only:
-        for label, _, src, results in runs:  # one after the other: each job has the cores
-            seconds = run(src, results, a.cores)
+        for label, _, src, results, points in runs:  # one after the other: each has the cores
+            seconds = run(src, results, points, a.cores)
             print(f"{label}: {seconds:.0f} s", flush=True)
     collect(runs, measured)
     return 0
