@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
-import torch
+import sys
+from typing import TYPE_CHECKING
 
 from signsplat.errors import SignSplatError
+
+if TYPE_CHECKING:
+    import torch
+
+# torch is imported inside the functions: the stages without it (segmentation, keypoints,
+# COLMAP, the report) use this module for their options and need not pay torch's import time.
 
 
 def select_device(name: str = "auto") -> torch.device:
@@ -13,6 +20,8 @@ def select_device(name: str = "auto") -> torch.device:
     ``auto`` picks CUDA when torch sees a GPU, else the CPU. Asking for CUDA on a machine
     without it is an error rather than a silent fall-back.
     """
+    import torch
+
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
@@ -49,6 +58,8 @@ def set_threads(n: int) -> None:
     earlier ``torch.set_num_threads`` (torch then ran every op on all cores while asked for one;
     on a core shared with another job each op waited for the descheduled thread).
     """
+    import torch
+
     n = max(1, int(n))
     try:
         import numba
@@ -68,4 +79,12 @@ def make_deterministic() -> None:
     backward, deterministic by construction) two 2-thread trainings of the demo wrote identical
     checkpoints after 300 steps (docs/avatar.md, "Reproducibility", which also records one
     earlier probe that parted at step 12 and was not seen again)."""
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    import torch
+
+    # torch.use_deterministic_algorithms also imports torch._inductor (more than a second per
+    # process) only to set the compiler's flag; nothing here compiles, so that flag is set
+    # only where the compiler is already loaded.
+    torch._C._set_deterministic_algorithms(True, warn_only=True)
+    inductor = sys.modules.get("torch._inductor.config")
+    if inductor is not None:
+        inductor.deterministic = True

@@ -64,3 +64,24 @@ def test_make_deterministic_makes_the_avatars_vertex_gather_backward_reproducibl
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=300, check=False)
     assert res.returncode == 0, res.stdout + res.stderr[-2000:]
+
+
+def test_stages_without_torch_do_not_import_it_and_determinism_skips_the_compiler():
+    """Every rule's process pays for what it imports (torch and its compiler take seconds):
+    the segmentation, keypoint, COLMAP and report commands import no torch through the
+    shared device options, and
+    :func:`make_deterministic` sets torch's flag, warn-only, without loading torch's compiler."""
+    code = (
+        "import sys\n"
+        "import signsplat.perception.cli, signsplat.colmap.cli, signsplat.report.cli\n"
+        "assert 'torch' not in sys.modules, 'torch imported by a stage that does not use it'\n"
+        "import torch\n"
+        "from signsplat.device import make_deterministic\n"
+        "make_deterministic()\n"
+        "assert torch.are_deterministic_algorithms_enabled()\n"
+        "assert torch.is_deterministic_algorithms_warn_only_enabled()\n"
+        "assert 'torch._inductor' not in sys.modules, 'make_deterministic loaded the compiler'\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, check=False)
+    assert res.returncode == 0, res.stdout + res.stderr[-2000:]
