@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 import torch
 from torch import nn
+from workflow_runs import shared_once
 
 from signsplat.io.tables import write_table
 from signsplat.perception.nets import TinySimCC, export_onnx
@@ -100,9 +101,8 @@ def export_static(model: nn.Module, path: Path, shape: tuple, names: list[str]) 
     return path
 
 
-@pytest.fixture(scope="session")
-def models(tmp_path_factory) -> dict[str, Path]:
-    d = tmp_path_factory.mktemp("models")
+def _export_models(d: Path) -> dict[str, str]:
+    d.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(0)
     out = {
         "bright_seg": d / "bright_seg.onnx",
@@ -114,7 +114,15 @@ def models(tmp_path_factory) -> dict[str, Path]:
     }
     export_onnx(BrightnessSegmenter(), out["bright_seg"], (64, 64), ["alpha"])
     export_onnx(TinySimCC(), out["tiny_kp"], (64, 48), ["simcc_x", "simcc_y"])
-    return out
+    return {k: str(v) for k, v in out.items()}
+
+
+@pytest.fixture(scope="session")
+def models(tmp_path_factory) -> dict[str, Path]:
+    """The small models, exported once for all of make test's workers (two of them through
+    torch.export, seconds each)."""
+    paths = shared_once(tmp_path_factory, "perception_models", _export_models)
+    return {k: Path(v) for k, v in paths.items()}
 
 
 @pytest.fixture
