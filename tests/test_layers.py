@@ -14,7 +14,7 @@ PKG = Path(__file__).resolve().parents[1] / "signsplat"
 # Floors, bottom first. A module may import from its own package or from a lower floor.
 FLOORS = [
     {"errors"},
-    {"io", "config", "device", "geometry"},
+    {"io", "config", "device", "geometry", "numba_cache"},
     {"render", "body", "motion"},
     {"synth", "perception", "fit", "colmap", "avatar"},
     {"stitch", "report"},

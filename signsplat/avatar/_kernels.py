@@ -20,6 +20,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from signsplat.numba_cache import cache_kernels_of
+
+cache_kernels_of(__file__)  # compiled once per content, not once per checkout
+
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def bary_fwd(values, anchors, weights, align, out, signs):  # pragma: no cover - compiled

@@ -6,7 +6,7 @@ Backends
     Ours: Numba kernels (projection, SH colours, tile binning with a depth sort, compositing
     and its backward), parallel over tiles on all cores, wrapped in ``torch.autograd.Function``.
     The backward never materialises per-(pixel, Gaussian) tensors. Compiled code is cached on
-    disk (see ``_numba_setup``); the first call in a fresh checkout compiles (~30 s).
+    disk (see ``signsplat.numba_cache``); the first call in a fresh checkout compiles (~30 s).
 ``"reference"``
     Plain PyTorch with autograd, dense per (pixel, Gaussian) pair; obvious rather than fast.
     The tests' oracle. Works on any device.

@@ -1,6 +1,6 @@
 """Numba kernels of the CPU backend: projection, SH colours, tile binning, compositing, backward.
 
-Every kernel is compiled with ``cache=True`` (see :mod:`._numba_setup` for the cache location)
+Every kernel is compiled with ``cache=True`` (see :mod:`signsplat.numba_cache` for the cache location)
 and is generic over the float type: the caller passes ``T`` = ``np.float32`` or ``np.float64``
 and every literal is written ``T(...)`` so float32 inputs are computed in float32 throughout
 (Numba would otherwise promote ``float32 * 0.5`` to float64).
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import types as pytypes
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -33,8 +34,9 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
+from signsplat.numba_cache import cache_kernels_of
+
 from . import _ewa
-from . import _numba_setup  # noqa: F401  (cache directory, before anything is compiled)
 from ._constants import (
     ALPHA_THRESHOLD,
     CPU_TILE,
@@ -45,6 +47,9 @@ from ._constants import (
     QUAT_EPS2,
     TRANSMITTANCE_THRESHOLD,
 )
+
+# cached by content, recompiled when these kernels, their shared formulas or constants change
+CACHE_DIR = cache_kernels_of(__file__, _ewa.__file__, Path(__file__).with_name("_constants.py"))
 
 TILE = CPU_TILE  # compile-time constant: the pixel loop is exactly one 16-lane row
 

@@ -23,6 +23,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from signsplat.numba_cache import cache_kernels_of
+
+cache_kernels_of(__file__)  # compiled once per content, not once per checkout
+
 __all__ = ["Raster", "rasterize", "interpolate", "interpolate_at", "face_attribute",
            "nearest_corner", "vertex_normals", "face_normals", "downsample", "camera_depth",
            "scale_intrinsics"]

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +14,8 @@ from raster_scenes import leafs, scene
 
 import signsplat.render as R
 from signsplat.render import rasterization, select_backend
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_shapes_and_meta_like_gsplat():
@@ -206,27 +210,66 @@ def test_exp_kernel_accuracy():
 
 
 def test_numba_cache_directory_is_writable():
-    from signsplat.render import _numba_setup
+    from pathlib import Path as P
 
-    assert _numba_setup.CACHE_DIR is not None
-    assert _numba_setup.CACHE_DIR.is_dir()
-    assert _numba_setup.source_stamp() in str(_numba_setup.CACHE_DIR)
+    from signsplat import numba_cache
+    from signsplat.render import _kernels
+
+    assert _kernels.CACHE_DIR is not None and _kernels.CACHE_DIR.is_dir()
+    cache_dir, stamp = numba_cache._FILES[P(_kernels.__file__).resolve()]
+    assert cache_dir == _kernels.CACHE_DIR and cache_dir.name == stamp
 
 
 def test_numba_cache_fallback_when_nothing_preferred_is_writable(tmp_path, monkeypatch):
-    from signsplat.render import _numba_setup
+    from signsplat import numba_cache
 
     ro = tmp_path / "ro"
     ro.mkdir()
     ro.chmod(0o500)
-    monkeypatch.setattr(_numba_setup, "_candidate_roots",
+    monkeypatch.setattr(numba_cache, "_candidate_roots",
                         lambda: [ro / "cache", tmp_path / "fallback"])
     try:
-        chosen = _numba_setup._choose_dir()
+        chosen = numba_cache._choose_dir("0123abcd")
     finally:
         ro.chmod(0o700)
     assert chosen is not None and str(chosen).startswith(str(tmp_path / "fallback")) \
         or chosen is not None and str(chosen).startswith(str(ro))  # root may write anyway
+
+
+def test_registered_kernel_files_are_cached_by_content_outside_the_checkout(tmp_path):
+    """A kernel module of another package that calls ``cache_kernels_of`` (as the avatar's and
+    the mesh renderer's do) is cached under the per-user cache in a directory named by its
+    content: a fresh clone of the same code finds it, an edited file gets a new one. In fresh
+    processes with the cache home and the module in temporary folders."""
+    import subprocess
+    import sys
+
+    mod = tmp_path / "pkg_kernels.py"
+    body = ("from numba import njit\n"
+            "from signsplat.numba_cache import cache_kernels_of, _FILES\n"
+            "cache_kernels_of(__file__)\n"
+            "@njit(cache=True)\n"
+            "def twice(x):\n"
+            "    return {} * x\n")
+    run = ("import pkg_kernels, pathlib\n"
+           "assert pkg_kernels.twice(3) == {}\n"
+           "print(pkg_kernels._FILES[pathlib.Path(pkg_kernels.__file__).resolve()][0])\n")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home"),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    env.pop("NUMBA_CACHE_DIR", None)
+    dirs = []
+    for factor in (2, 2, 3):
+        mod.write_text(body.format(factor))
+        res = subprocess.run([sys.executable, "-c", run.format(3 * factor)], env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr[-2000:]
+        dirs.append(Path(res.stdout.strip()))
+    assert dirs[0] == dirs[1] != dirs[2]
+    assert all(d.parent == tmp_path / "home" / "signsplat" / "numba" for d in dirs)
+    assert list(dirs[0].glob("pkg_kernels.twice-*.nbi")), list(dirs[0].iterdir())
+    assert list(dirs[2].glob("pkg_kernels.twice-*.nbi"))
+    assert not (tmp_path / "__pycache__").exists() or \
+        not list((tmp_path / "__pycache__").glob("*.nbi"))  # not beside the source
 
 
 def test_package_exports():
