@@ -83,15 +83,18 @@ models-for-tests: $(STAMP)
 # The suite on $(JOBS) workers (pytest-xdist; work stealing, as a few end-to-end runs are long);
 # pytest prints its time and the slowest tests at the end. The local SLURM cluster is started
 # first where it can be (root and its packages; otherwise the cluster tests say why they skip)
-# and stopped afterwards when this started it.
+# and stopped afterwards when this started it. With the cluster up, one worker more: the one
+# that runs the cluster tests spends minutes waiting for SLURM's jobs, whose CPU is their own.
 test: $(STAMP) chromium slurm-packages models-for-tests
-	@started=0; \
+	@started=0; workers=$(JOBS); \
 	if [ "$$(id -u)" = 0 ] && command -v slurmctld >/dev/null 2>&1 \
 	   && ! workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then \
 	  if workflow/cluster/local-slurm.sh start; then started=1; \
 	  else echo "the local SLURM cluster did not start: the cluster tests will say why"; fi; \
 	fi; \
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15; rc=$$?; \
+	if workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then workers=$$(($(JOBS) + 1)); fi; \
+	echo "pytest on $$workers workers"; \
+	$(BIN)/python -m pytest -q -n $$workers --dist worksteal --durations=15; rc=$$?; \
 	if [ $$started = 1 ]; then workflow/cluster/local-slurm.sh stop >/dev/null || true; fi; \
 	exit $$rc
 
