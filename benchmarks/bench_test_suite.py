@@ -1,7 +1,7 @@
 """The test suite's wall-clock and CPU time, this checkout beside another, in one run.
 
     python benchmarks/bench_test_suite.py --baseline /path/to/old/checkout \
-        [--baseline-args="-q --durations=40"] [--args="-q -n 2 --dist worksteal --durations=40"]
+        [--baseline-args="-q --durations=40"] [--args="-q -n 3 --dist worksteal --durations=40"]
 
 Each checkout runs its own tests with its own library on the path (PYTHONPATH = the checkout),
 with this interpreter; where the baseline pinned another version of a dependency, install that
@@ -76,7 +76,7 @@ def run_suite(label: str, checkout: Path, args: list[str], path: list[str] = ())
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline", type=Path, required=True, help="the other checkout")
-    parser.add_argument("--args", default="-q -n 2 --dist worksteal --durations=40",
+    parser.add_argument("--args", default="-q -n 3 --dist worksteal --durations=40",
                         help="pytest arguments for this checkout (make test's)")
     parser.add_argument("--baseline-args", default=None,
                         help="pytest arguments for the baseline (default: --args)")

@@ -7,15 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from workflow_runs import shared_once
-
-
-def _write_proxy_body(folder: Path) -> str:
-    from signsplat.body.proxy import write_proxy_model
-
-    folder.mkdir(parents=True, exist_ok=True)
-    write_proxy_model(folder / "body.npz", seed=0)
-    return str(folder / "body.npz")
+from workflow_runs import proxy_body, shared_once
 
 
 def _write_gloss_library(folder: Path) -> str:
@@ -29,7 +21,7 @@ def _write_gloss_library(folder: Path) -> str:
 @pytest.fixture(scope="session")
 def proxy_body_path(tmp_path_factory):
     """The proxy SMPL-X body (seed 0) written once as an official-layout ``.npz``."""
-    return Path(shared_once(tmp_path_factory, "proxy_body", _write_proxy_body))
+    return proxy_body(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")

@@ -65,10 +65,25 @@ TINY_THREADS = ["--set-threads", "simulate=1", "segment=1", "detect_keypoints=1"
                 "stitch_video=1"]
 
 
-def tiny_config(work: Path, name: str = "config.yaml") -> Path:
+def proxy_body(tmp_path_factory) -> Path:
+    """The procedural proxy body (seed 0) in the official SMPL-X layout, written once per test
+    session for all of make test's workers."""
+    def write(folder: Path) -> str:
+        from signsplat.body.proxy import write_proxy_model
+
+        folder.mkdir(parents=True, exist_ok=True)
+        write_proxy_model(folder / "body.npz", seed=0)
+        return str(folder / "body.npz")
+
+    return Path(shared_once(tmp_path_factory, "proxy_body", write))
+
+
+def tiny_config(work: Path, name: str = "config.yaml", body: Path | None = None) -> Path:
     """Two tiny sequences end to end: `tiny` (config/scenes/tiny.yaml: 2 views x 4 frames) and
     `tiny1` (1 view, another body, appearance, gloss and seed: the single-view fit), with the
-    smallest fit, avatar (4 steps) and stitching settings; results and report under ``work``."""
+    smallest fit, avatar (4 steps) and stitching settings; results and report under ``work``.
+    With ``body`` (the session's proxy body file) the body_model rule checks and copies that
+    file, as for a user's SMPL-X file, instead of building the same proxy again."""
     spec = yaml.safe_load((ROOT / "config" / "scenes" / "tiny.yaml").read_text())
     spec.update(seed=11, cameras={**spec["cameras"], "count": 1},
                 signer={"betas": [-0.3, 0.2] + [0.0] * 8, "appearance_seed": 3},
@@ -88,14 +103,16 @@ def tiny_config(work: Path, name: str = "config.yaml") -> Path:
         "stitch": {"sentences": ["Why are you sad?"], "size": 64},
         "report": {"html": str(work / "report" / "index.html")},
     }
+    if body is not None:
+        cfg["body_model"] = {"path": str(body)}
     path = work / name
     path.write_text(yaml.safe_dump(cfg))
     return path
 
 
-def _local_run(work: Path) -> dict:
+def _local_run(work: Path, body: Path) -> dict:
     work.mkdir(parents=True, exist_ok=True)
-    cfg = tiny_config(work)
+    cfg = tiny_config(work, body=body)
     res = snakemake("--cores", "2", *TINY_THREADS, "--configfile", str(cfg))
     assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]
     return {"work": str(work)}
@@ -105,4 +122,6 @@ def tiny_local_run(tmp_path_factory) -> Path:
     """The folder of the two tiny sequences' local run (``config.yaml``, ``results/``,
     ``report/``), made once per test session. Tests must not write into it: copy
     ``results`` (with its times, ``shutil.copytree``) and point a config at the copy."""
-    return Path(shared_once(tmp_path_factory, "local_run", _local_run)["work"])
+    body = proxy_body(tmp_path_factory)
+    return Path(shared_once(tmp_path_factory, "local_run",
+                            lambda work: _local_run(work, body))["work"])

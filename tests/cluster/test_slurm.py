@@ -23,7 +23,8 @@ from signsplat.io.atomic import is_temporary
 from signsplat.io.images import read_rgb
 from signsplat.report.accounting import query_sacct
 
-from workflow_runs import TINY_THREADS, shared_once, snakemake, tiny_config, tiny_local_run
+from workflow_runs import (TINY_THREADS, proxy_body, shared_once, snakemake, tiny_config,
+                           tiny_local_run)
 
 from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, slurm_args,
                             slurm_env)
@@ -34,9 +35,9 @@ pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 FAULT = "fail-once:fit:/tiny1/fit:1"
 
 
-def _slurm_run(work: Path) -> dict:
+def _slurm_run(work: Path, body: Path) -> dict:
     work.mkdir(parents=True, exist_ok=True)
-    cfg = tiny_config(work)
+    cfg = tiny_config(work, body=body)
     t0 = time.time()
     res = snakemake("--configfile", str(cfg), *TINY_THREADS, *slurm_args(work / "slurm_logs"),
                     env=fault_env(FAULT, work / "fault"))
@@ -49,7 +50,8 @@ def _slurm_run(work: Path) -> dict:
 def slurm_run(slurm_cluster, tmp_path_factory):
     """The two tiny sequences through the local cluster (once per session), with fit_smplx
     of tiny1 made to crash once."""
-    run = shared_once(tmp_path_factory, "slurm_run", _slurm_run)
+    body = proxy_body(tmp_path_factory)
+    run = shared_once(tmp_path_factory, "slurm_run", lambda work: _slurm_run(work, body))
     work, log = Path(run["work"]), run["log"]
     run_id = re.search(r"SLURM run ID: (\S+)", log).group(1)
     sacct = query_sacct(name=run_id)
