@@ -74,6 +74,23 @@ def pytest_collection_modifyitems(config, items):
 
 
 @pytest.fixture(autouse=True)
+def _one_thread():
+    """Every test on one thread of torch and of Numba unless it sets its own (restored after
+    it): make test's workers already keep every core busy, and a second thread pool in each
+    of them only adds waiting and spinning on the shared cores."""
+    import numba
+    import torch
+
+    from signsplat.device import set_threads
+
+    before = torch.get_num_threads(), numba.get_num_threads()
+    set_threads(1)
+    yield
+    numba.set_num_threads(before[1])  # Numba first: see signsplat.device.set_threads
+    torch.set_num_threads(before[0])
+
+
+@pytest.fixture(autouse=True)
 def _autograd_left_on():
     """A test that leaves autograd switched off for its process fails (the tests after it on
     the same worker would fail instead, far from the cause); grad mode is restored."""

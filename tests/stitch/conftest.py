@@ -37,10 +37,3 @@ def tiny_files(tmp_path_factory, tiny_body_path):
     ckpt = trainer.save_checkpoint(root / "checkpoint.pt")
     return tiny_body_path, cam_path, ckpt
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
