@@ -6,6 +6,13 @@ import subprocess
 import sys
 
 
+def _in_a_fresh_process(code: str) -> None:
+    """Run ``code`` in a new interpreter (thread pools and torch's flags are process-wide)."""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=600, check=False)
+    assert res.returncode == 0, res.stdout + res.stderr[-2000:]
+
+
 def test_set_threads_holds_for_torch_after_numba_starts_its_pool():
     """In a fresh process (the pools are process-wide): numba's pool launch must not undo the
     torch setting, and rendering with the Numba kernel must not either."""
@@ -27,9 +34,7 @@ def test_set_threads_holds_for_torch_after_numba_starts_its_pool():
         "set_threads(2)\n"
         "assert torch.get_num_threads() == 2\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=600)
-    assert res.returncode == 0, res.stderr[-2000:]
+    _in_a_fresh_process(code)
 
 
 def test_make_deterministic_makes_the_avatars_vertex_gather_backward_reproducible():
@@ -61,9 +66,7 @@ def test_make_deterministic_makes_the_avatars_vertex_gather_backward_reproducibl
         "ref = grad()\n"
         "assert all(torch.equal(ref, grad()) for _ in range(20))\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=300, check=False)
-    assert res.returncode == 0, res.stdout + res.stderr[-2000:]
+    _in_a_fresh_process(code)
 
 
 def test_stages_without_torch_do_not_import_it_and_determinism_skips_the_compiler():
@@ -82,6 +85,4 @@ def test_stages_without_torch_do_not_import_it_and_determinism_skips_the_compile
         "assert torch.is_deterministic_algorithms_warn_only_enabled()\n"
         "assert 'torch._inductor' not in sys.modules, 'make_deterministic loaded the compiler'\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=300, check=False)
-    assert res.returncode == 0, res.stdout + res.stderr[-2000:]
+    _in_a_fresh_process(code)
