@@ -87,12 +87,11 @@ models-for-tests: $(STAMP)
 # that runs the cluster tests spends minutes waiting for SLURM's jobs, whose CPU is their own.
 test: $(STAMP) chromium slurm-packages models-for-tests
 	@started=0; workers=$(JOBS); \
-	if [ "$$(id -u)" = 0 ] && command -v slurmctld >/dev/null 2>&1 \
-	   && ! workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then \
-	  if workflow/cluster/local-slurm.sh start; then started=1; \
+	if workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then workers=$$(($(JOBS) + 1)); \
+	elif [ "$$(id -u)" = 0 ] && command -v slurmctld >/dev/null 2>&1; then \
+	  if workflow/cluster/local-slurm.sh start; then started=1; workers=$$(($(JOBS) + 1)); \
 	  else echo "the local SLURM cluster did not start: the cluster tests will say why"; fi; \
 	fi; \
-	if workflow/cluster/local-slurm.sh status >/dev/null 2>&1; then workers=$$(($(JOBS) + 1)); fi; \
 	echo "pytest on $$workers workers"; \
 	$(BIN)/python -m pytest -q -n $$workers --dist worksteal --durations=15; rc=$$?; \
 	if [ $$started = 1 ]; then workflow/cluster/local-slurm.sh stop >/dev/null || true; fi; \

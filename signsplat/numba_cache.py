@@ -80,8 +80,8 @@ def _choose_dir(stamp: str) -> Path | None:
     return None
 
 
-# resolved kernel module -> (its cache directory, its source stamp)
-_FILES: dict[Path, tuple[Path, str]] = {}
+# resolved kernel module -> its cache directory (named by its source stamp)
+_FILES: dict[Path, Path] = {}
 
 
 def cache_kernels_of(py_file: str | os.PathLike, *depends: str | os.PathLike) -> Path | None:
@@ -93,7 +93,7 @@ def cache_kernels_of(py_file: str | os.PathLike, *depends: str | os.PathLike) ->
     stamp = _stamp([Path(py_file), *map(Path, depends), Path(__file__)])
     path = _choose_dir(stamp)
     if path is not None:
-        _FILES[Path(py_file).resolve()] = (path, stamp)
+        _FILES[Path(py_file).resolve()] = path
     elif not os.environ.get("NUMBA_CACHE_DIR"):  # pragma: no cover
         # nothing writable found for our locator: let Numba's own fallbacks try a temp dir
         tmp = Path(tempfile.gettempdir()) / f"numba-cache-{os.getuid()}"
@@ -106,17 +106,16 @@ def cache_kernels_of(py_file: str | os.PathLike, *depends: str | os.PathLike) ->
 class ContentCacheLocator(caching._CacheLocator):
     """Numba cache locator for the registered kernel files (see the module docstring)."""
 
-    def __init__(self, py_func, py_file, cache_path: Path, stamp: str):
+    def __init__(self, py_func, py_file, cache_path: Path):
         self._py_file = py_file
         self._lineno = py_func.__code__.co_firstlineno
-        self._cache_path = str(cache_path)
-        self._stamp = stamp
+        self._cache_path = cache_path
 
     def get_cache_path(self):
-        return self._cache_path
+        return str(self._cache_path)
 
     def get_source_stamp(self):
-        return self._stamp
+        return self._cache_path.name  # the folder is named by the sources' hash
 
     def get_disambiguator(self):
         return str(self._lineno)
@@ -124,12 +123,12 @@ class ContentCacheLocator(caching._CacheLocator):
     @classmethod
     def from_function(cls, py_func, py_file):
         try:
-            entry = _FILES.get(Path(py_file).resolve())
+            cache_path = _FILES.get(Path(py_file).resolve())
         except OSError:
             return None
-        if entry is None:
+        if cache_path is None:
             return None
-        self = cls(py_func, py_file, *entry)
+        self = cls(py_func, py_file, cache_path)
         try:
             self.ensure_cache_path()
         except OSError:

@@ -1,6 +1,6 @@
 """Numba kernels of the CPU backend: projection, SH colours, tile binning, compositing, backward.
 
-Every kernel is compiled with ``cache=True`` (see :mod:`signsplat.numba_cache` for the cache location)
+Every kernel is compiled with ``cache=True`` (:mod:`signsplat.numba_cache` has the cache location)
 and is generic over the float type: the caller passes ``T`` = ``np.float32`` or ``np.float64``
 and every literal is written ``T(...)`` so float32 inputs are computed in float32 throughout
 (Numba would otherwise promote ``float32 * 0.5`` to float64).

@@ -9,20 +9,17 @@ import torch
 
 @pytest.fixture(autouse=True)
 def _same_numerics_whatever_ran_before():
-    """Every fit test on one torch thread with torch's deterministic kernels (what run_fit
-    asks for), restored afterwards. Both are process-wide: other tests in the same pytest-xdist
-    worker (a CLI run with --threads 2, a fit through run_fit) changed them for the tests that
-    came after, so a fit's last digits, and a bound near its figure, depended on the order
-    the worker happened to run the tests in."""
+    """Every fit test with torch's deterministic kernels (what run_fit asks for), on one thread
+    (tests/conftest.py), restored afterwards. Both are process-wide: other tests in the same
+    pytest-xdist worker (a CLI run with --threads 2, a fit through run_fit) changed them for the
+    tests that came after, so a fit's last digits, and a bound near its figure, depended on the
+    order the worker happened to run the tests in."""
     from signsplat.device import make_deterministic
 
-    threads = torch.get_num_threads()
     deterministic = torch.are_deterministic_algorithms_enabled()
     warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
-    torch.set_num_threads(1)
     make_deterministic()
     yield
-    torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(deterministic, warn_only=warn_only)
 
 

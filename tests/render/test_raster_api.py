@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import types
 from pathlib import Path
@@ -210,14 +211,11 @@ def test_exp_kernel_accuracy():
 
 
 def test_numba_cache_directory_is_writable():
-    from pathlib import Path as P
-
     from signsplat import numba_cache
     from signsplat.render import _kernels
 
     assert _kernels.CACHE_DIR is not None and _kernels.CACHE_DIR.is_dir()
-    cache_dir, stamp = numba_cache._FILES[P(_kernels.__file__).resolve()]
-    assert cache_dir == _kernels.CACHE_DIR and cache_dir.name == stamp
+    assert numba_cache._FILES[Path(_kernels.__file__).resolve()] == _kernels.CACHE_DIR
 
 
 def test_numba_cache_fallback_when_nothing_preferred_is_writable(tmp_path, monkeypatch):
@@ -241,9 +239,6 @@ def test_registered_kernel_files_are_cached_by_content_outside_the_checkout(tmp_
     the mesh renderer's do) is cached under the per-user cache in a directory named by its
     content: a fresh clone of the same code finds it, an edited file gets a new one. In fresh
     processes with the cache home and the module in temporary folders."""
-    import subprocess
-    import sys
-
     mod = tmp_path / "pkg_kernels.py"
     body = ("from numba import njit\n"
             "from signsplat.numba_cache import cache_kernels_of, _FILES\n"
@@ -253,7 +248,7 @@ def test_registered_kernel_files_are_cached_by_content_outside_the_checkout(tmp_
             "    return {} * x\n")
     run = ("import pkg_kernels, pathlib\n"
            "assert pkg_kernels.twice(3) == {}\n"
-           "print(pkg_kernels._FILES[pathlib.Path(pkg_kernels.__file__).resolve()][0])\n")
+           "print(pkg_kernels._FILES[pathlib.Path(pkg_kernels.__file__).resolve()])\n")
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "home"),
            "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
     env.pop("NUMBA_CACHE_DIR", None)
