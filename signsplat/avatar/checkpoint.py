@@ -13,6 +13,7 @@ from signsplat.avatar.config import AvatarConfig, avatar_config
 from signsplat.avatar.data import SMPLX_BLOCKS
 from signsplat.avatar.model import AvatarModel
 from signsplat.avatar.upsample import upsample_mesh
+from signsplat.render import DEFAULT_EPS2D
 
 
 def canonical_template(body, betas: torch.Tensor) -> torch.Tensor:
@@ -63,6 +64,9 @@ def load_avatar(path: str | os.PathLike, body, device: torch.device | str = "cpu
     saved = state["config"]
     if "pose_net_on" not in saved.get("model", {}):  # saved before the setting: the paper's
         saved = {**saved, "model": {**saved.get("model", {}), "pose_net_on": "points"}}
+    if "eps2d" not in saved.get("model", {}):  # trained before the setting: 3DGS's filter
+        saved = {**saved, "model": {**saved.get("model", {}), "eps2d": DEFAULT_EPS2D,
+                                    "rasterize_mode": "classic"}}
     cfg = avatar_config(saved)
     smplx_state = state["smplx"]
     learnable = cfg.train.finetune_smplx

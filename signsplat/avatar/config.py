@@ -63,6 +63,8 @@ class ModelConfig:
     init_opacity: float
     flat_init: float  # > 0: start as discs in the surface, normal scale = this x in-plane
     init_color: tuple[float, float, float]
+    eps2d: float  # px^2, the rasterizer's 2D dilation in training and rendering
+    rasterize_mode: str  # "classic" or "antialiased" (opacity compensated for the dilation)
 
 
 @dataclass

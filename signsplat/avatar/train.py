@@ -73,31 +73,32 @@ def default_rasterizer() -> RasterizeFn:
 
 def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, Ks: torch.Tensor,
                      width: int, height: int, background: torch.Tensor,
-                     backend: str, eps2d: float = DEFAULT_EPS2D
+                     backend: str, eps2d: float = DEFAULT_EPS2D, rasterize_mode: str = "classic"
                      ) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Render frame ``b`` of posed Gaussians ``g`` from C cameras -> (C,H,W,3), (C,H,W,1), meta.
-    ``eps2d``: screen-space dilation in pixels^2 (see :func:`eval_eps2d`)."""
+    ``eps2d``: screen-space dilation in pixels^2 (see :func:`eval_eps2d`); ``rasterize_mode``:
+    "classic" or "antialiased" (the avatar's ``model.eps2d`` and ``model.rasterize_mode``)."""
     c = viewmats.shape[0]
     colors, alphas, meta = rasterize(
         means=g.means[b], quats=g.quats[b], scales=g.scales[b], opacities=g.opacities[b],
         colors=g.colors[b], viewmats=viewmats, Ks=Ks, width=width, height=height,
         sh_degree=g.sh_degree, backgrounds=background[None].expand(c, -1), backend=backend,
-        eps2d=eps2d,
+        eps2d=eps2d, rasterize_mode=rasterize_mode,
     )
     meta.setdefault("width", width)
     meta.setdefault("height", height)
     return colors, alphas, meta
 
 
-def eval_eps2d(train_resolution: int, width: int) -> float:
-    """Dilation for rendering at ``width`` an avatar trained at ``train_resolution`` (0 =
-    native). The 0.3 px^2 dilation of training is part of what the avatar learned: trained at
-    128 px it covers four times the world-space area of 0.3 px^2 at 256 px, and its Gaussians
-    shrink to rely on it; rendered at 256 px with 0.3 they leave holes. Keeping the dilation's
-    world-space footprint keeps what was learned."""
+def eval_eps2d(eps2d: float, train_resolution: int, width: int) -> float:
+    """Dilation for rendering at ``width`` an avatar trained with dilation ``eps2d`` at
+    ``train_resolution`` (0 = native). The dilation of training is part of what the avatar
+    learned: trained at 128 px it covers four times the world-space area it covers at 256 px,
+    and its Gaussians shrink to rely on it; rendered at 256 px with the same pixels^2 they
+    leave holes. Keeping the dilation's world-space footprint keeps what was learned."""
     if train_resolution <= 0:
-        return DEFAULT_EPS2D
-    return DEFAULT_EPS2D * (width / train_resolution) ** 2
+        return eps2d
+    return eps2d * (width / train_resolution) ** 2
 
 
 def _content_box(a: torch.Tensor, b: torch.Tensor, margin: int) -> tuple[int, int, int, int]:
@@ -272,7 +273,9 @@ class AvatarTrainer:
         colors, alphas, meta = render_gaussians(self.rasterize, g, b, vm,
                                                 self.Ks[view_i:view_i + 1], self.data.width,
                                                 self.data.height, self.background,
-                                                self.cfg.train.render_backend)
+                                                self.cfg.train.render_backend,
+                                                self.cfg.model.eps2d,
+                                                self.cfg.model.rasterize_mode)
         if self.cfg.strategy.enabled:
             self.strategy.step_pre_backward(meta)
         render = colors[0].permute(2, 0, 1)[None].clamp(0, 1)

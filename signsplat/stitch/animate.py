@@ -236,11 +236,13 @@ class AvatarRenderer:
         camera: the :class:`Camera` (or None: call :meth:`set_camera` before rendering).
         sh_degree: SH degree to evaluate; background: (3,) RGB in [0, 1];
         backend: rasterizer backend ('cpu' is the fast Numba kernel; 'auto' picks it on CPU).
+        raster: options of :func:`signsplat.render.rasterization` the avatar was trained with
+            (``eps2d``, ``rasterize_mode``; none: the rasterizer's own defaults).
     """
 
     def __init__(self, model, body, identity: Identity, camera: Camera | None, sh_degree: int = 0,
                  background=(1.0, 1.0, 1.0), backend: str = "auto",
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", raster: dict | None = None):
         from signsplat.render import rasterization
 
         self.model = model.eval().requires_grad_(False)
@@ -250,6 +252,7 @@ class AvatarRenderer:
         self.device = torch.device(device)
         self.background = torch.tensor(background, dtype=torch.float32, device=self.device)
         self.backend = backend
+        self.raster = dict(raster or {})
         self._rasterize = rasterization
         self.scene = ""
         self.camera = None
@@ -279,7 +282,9 @@ class AvatarRenderer:
         identity = avatar_identity(smplx, placement == "avatar")
         renderer = cls(model, body, identity, camera, cfg.model.sh_degree,
                        cfg.train.background if background is None else background,
-                       cfg.train.render_backend if backend is None else backend, device)
+                       cfg.train.render_backend if backend is None else backend, device,
+                       raster={"eps2d": cfg.model.eps2d,
+                               "rasterize_mode": cfg.model.rasterize_mode})
         renderer.scene = str(state.get("scene", ""))
         return renderer
 
@@ -302,7 +307,7 @@ class AvatarRenderer:
                 means=g.means[b], quats=g.quats[b], scales=g.scales[b],
                 opacities=g.opacities[b], colors=g.colors[b], viewmats=self._viewmat,
                 Ks=self._K, width=cam.width, height=cam.height, sh_degree=g.sh_degree,
-                backgrounds=self.background[None], backend=self.backend)
+                backgrounds=self.background[None], backend=self.backend, **self.raster)
             images[b] = (colors[0].clamp(0, 1) * 255 + 0.5).to(torch.uint8).cpu().numpy()
         return images, out
 

@@ -46,7 +46,8 @@ def scene(tiny_body_path):
     body = BodyModel.from_file(tiny_body_path)
     vm, K = rig(3, SIZE)
     smplx = random_smplx(6)
-    teacher = build_model(body, torch.zeros(1, 10), _cfg())
+    cfg = _cfg()
+    teacher = build_model(body, torch.zeros(1, 10), cfg)
     with torch.no_grad():
         teacher.sh_dc.normal_(0, 1.0)
         imgs = []
@@ -57,7 +58,8 @@ def scene(tiny_body_path):
                 o = body(**p)
                 g = teacher(o.v_shaped, o.vertices, o.transforms, p["transl"], 0)
                 col, _, _ = render_gaussians(rasterization, g, 0, vm[c:c + 1], K[c:c + 1], SIZE,
-                                             SIZE, torch.ones(3), "cpu")
+                                             SIZE, torch.ones(3), "cpu", cfg.model.eps2d,
+                                             cfg.model.rasterize_mode)
                 row.append(col[0])
             imgs.append(torch.stack(row))
     return body, make_scene(torch.stack(imgs), vm, K, smplx)
@@ -310,7 +312,8 @@ def test_colour_init_from_images_starts_closer_to_the_images(scene):
                 for v in range(3):
                     col, _, _ = render_gaussians(rasterization, g, 0, data.viewmats[v:v + 1],
                                                  data.Ks[v:v + 1], SIZE, SIZE, torch.ones(3),
-                                                 "cpu")
+                                                 "cpu", tr.cfg.model.eps2d,
+                                                 tr.cfg.model.rasterize_mode)
                     gt = data.images[v, int(f)].float() / 255
                     errs.append(float((col[0] - gt).abs().mean()))
         return np.mean(errs)
@@ -324,8 +327,8 @@ def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(sc
     from signsplat.avatar.train import eval_eps2d
     from signsplat.render import DEFAULT_EPS2D as EPS2D
 
-    assert eval_eps2d(0, 256) == EPS2D and eval_eps2d(256, 256) == EPS2D
-    assert eval_eps2d(128, 256) == pytest.approx(4 * EPS2D)
+    assert eval_eps2d(EPS2D, 0, 256) == EPS2D and eval_eps2d(EPS2D, 256, 256) == EPS2D
+    assert eval_eps2d(EPS2D, 128, 256) == pytest.approx(4 * EPS2D)
     # an avatar whose Gaussians are far below a pixel relies on the dilation for coverage:
     # with the footprint kept, rendering at twice the size covers as much of the body
     body, data = scene
@@ -335,7 +338,8 @@ def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(sc
         out, g = tr.pose(torch.tensor([0]), 0)
     vm, K = data.viewmats[:1], data.Ks[:1].clone()
     cover = []
-    for size, eps in ((SIZE, EPS2D), (2 * SIZE, EPS2D), (2 * SIZE, eval_eps2d(SIZE, 2 * SIZE))):
+    twice = eval_eps2d(EPS2D, SIZE, 2 * SIZE)
+    for size, eps in ((SIZE, EPS2D), (2 * SIZE, EPS2D), (2 * SIZE, twice)):
         Ks = K.clone()
         Ks[:, :2] *= size / SIZE
         _, alpha, _ = render_gaussians(rasterization, g, 0, vm, Ks, size, size, torch.ones(3),
@@ -343,6 +347,45 @@ def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(sc
         cover.append(float(alpha.mean()))
     assert cover[1] < 0.8 * cover[0], cover  # holes at twice the size with the same dilation
     assert cover[2] > 0.9 * cover[0], cover
+
+
+def test_training_evaluation_and_the_sign_renderer_use_the_avatars_own_filter(scene, tmp_path):
+    """model.eps2d and model.rasterize_mode reach every image render of the avatar: training,
+    evaluation (at the training resolution) and the sign-video renderer of its checkpoint."""
+    from signsplat.avatar.checkpoint import load_avatar
+    from signsplat.motion.stitching import FRAME_BLOCKS, Frame
+    from signsplat.render import DEFAULT_EPS2D as EPS2D
+    from signsplat.stitch.animate import AvatarRenderer, Camera
+
+    body, data = scene
+    seen = []
+
+    def spy(**kw):  # the images (the colour init's depth renders only test visibility)
+        if kw.get("render_mode", "RGB") == "RGB":
+            seen.append((kw["eps2d"], kw["rasterize_mode"]))
+        return rasterization(**kw)
+
+    cfg = _cfg(train={"iterations": 2}, model={"eps2d": 0.05, "rasterize_mode": "antialiased"})
+    tr = AvatarTrainer(body, data, cfg, rasterize=spy)
+    tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
+    trained, seen[:] = list(seen), []
+    evaluate_checkpoint(tmp_path / "ck.pt", body, data, "t", rasterize=spy,
+                        overrides={"refine_steps": 0})
+    evaluated, seen[:] = list(seen), []
+    cam = Camera(data.viewmats[0].numpy(), data.Ks[0].numpy(), SIZE, SIZE)
+    renderer = AvatarRenderer.from_checkpoint(tmp_path / "ck.pt", body, cam, backend="cpu")
+    renderer._rasterize = spy
+    frame = Frame("rest", 0, {b: np.zeros(k, np.float32) for b, k in FRAME_BLOCKS.items()})
+    renderer.render([frame])
+    assert trained and evaluated and seen
+    assert set(trained) == set(evaluated) == set(seen) == {(0.05, "antialiased")}
+    # a checkpoint saved before the settings existed was trained with 3DGS's filter
+    state = torch.load(tmp_path / "ck.pt", weights_only=False)
+    for key in ("eps2d", "rasterize_mode"):
+        del state["config"]["model"][key]
+    torch.save(state, tmp_path / "old.pt")
+    cfg = load_avatar(tmp_path / "old.pt", body)[3]
+    assert (cfg.model.eps2d, cfg.model.rasterize_mode) == (EPS2D, "classic")
 
 
 def test_test_time_refinement_never_keeps_a_pose_that_fits_worse(scene, tmp_path):
