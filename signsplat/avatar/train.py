@@ -44,6 +44,9 @@ from signsplat.io.atomic import atomic_path
 from signsplat.io.tables import Table, register_table
 from signsplat.render import DEFAULT_EPS2D
 
+#: the SMPL-X blocks with a learning rate of their own (``train.lr_hand_poses``)
+HAND_POSES = ("left_hand_pose", "right_hand_pose")
+
 log = logging.getLogger(__name__)
 
 TRAIN_LOG = register_table(Table(
@@ -217,8 +220,13 @@ class AvatarTrainer:
             groups.append({"params": nets, "lr": t.lr_network, "name": "networks"})
         if self.smplx.learnable:
             shape = [p for n, p in self.smplx.named_parameters() if n == "betas"]
-            per_frame = [p for n, p in self.smplx.named_parameters() if n != "betas"]
+            hands = [p for n, p in self.smplx.named_parameters() if n in HAND_POSES]
+            per_frame = [p for n, p in self.smplx.named_parameters()
+                         if n != "betas" and n not in HAND_POSES]
             groups.append({"params": per_frame, "lr": t.lr_smplx, "name": "smplx"})
+            if hands:
+                groups.append({"params": hands, "name": "hand_poses",
+                               "lr": t.lr_smplx if t.lr_hand_poses is None else t.lr_hand_poses})
             if shape:
                 groups.append({"params": shape, "name": "betas",
                                "lr": t.lr_smplx if t.lr_betas is None else t.lr_betas})

@@ -144,6 +144,24 @@ def test_shape_coefficients_have_their_own_learning_rate(scene):
     assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["betas"] == 2e-4
 
 
+def test_finger_poses_have_their_own_learning_rate(scene):
+    """train.lr_hand_poses moves the finger poses (and only them) at their own rate."""
+    body, data = scene
+    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_hand_poses": 2e-2}))
+    groups = {g["name"]: g for g in tr.optimizer.param_groups}
+    assert groups["hand_poses"]["lr"] == 2e-2 and groups["smplx"]["lr"] == 1e-4
+    assert {id(p) for p in groups["hand_poses"]["params"]} == {
+        id(tr.smplx.left_hand_pose), id(tr.smplx.right_hand_pose)}
+    before = {n: getattr(tr.smplx, n).detach().clone() for n in ("right_hand_pose", "body_pose")}
+    for _ in range(3):
+        tr.train_step()
+    moved = {n: float((getattr(tr.smplx, n) - v).abs().max()) for n, v in before.items()}
+    assert 1e-2 < moved["right_hand_pose"] <= 1.05 * 3 * 2e-2
+    assert 0 < moved["body_pose"] <= 1.05 * 3 * 1e-4
+    same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4, "lr_hand_poses": None}))
+    assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["hand_poses"] == 2e-4
+
+
 def _write_scene(root, data, smplx_override):
     rows, cams = [], []
     for vi, v in enumerate(data.views):
