@@ -66,6 +66,10 @@ class ModelConfig:
     eps2d: float  # px^2, the rasterizer's 2D dilation in training and rendering
     rasterize_mode: str  # "classic" or "antialiased" (opacity compensated for the dilation)
 
+    def raster_options(self) -> dict:
+        """The rasterizer's options of every image render of the avatar (its filter)."""
+        return {"eps2d": self.eps2d, "rasterize_mode": self.rasterize_mode}
+
 
 @dataclass
 class ShSchedule:

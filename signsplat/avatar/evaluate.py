@@ -144,7 +144,8 @@ class Evaluator:
         self.background = torch.tensor(cfg.train.background, dtype=torch.float32)
         self.lpips = load_lpips(cfg.loss.lpips_weights)
         self.sh_degree = cfg.model.sh_degree
-        self.eps2d = eval_eps2d(cfg.model.eps2d, cfg.train.resolution, data.width)
+        self.raster = {**cfg.model.raster_options(),
+                       "eps2d": eval_eps2d(cfg.model.eps2d, cfg.train.resolution, data.width)}
         self.refine_kept = self.refine_tried = 0  # test-time refinements kept / tried
         self.model.requires_grad_(False)
         make_deterministic()  # the refinement's gradients, as in training
@@ -157,8 +158,7 @@ class Evaluator:
         K = self.data.Ks[view_i:view_i + 1].to(self.device)
         colors, _, _ = render_gaussians(self.rasterize, g, 0, vm, K, self.data.width,
                                         self.data.height, self.background.to(self.device),
-                                        self.cfg.train.render_backend, self.eps2d,
-                                        self.cfg.model.rasterize_mode)
+                                        self.cfg.train.render_backend, **self.raster)
         return colors[0].permute(2, 0, 1).clamp(0, 1), out
 
     def frame_params(self, frame_i: int) -> dict[str, torch.Tensor]:

@@ -42,7 +42,6 @@ from signsplat.avatar.strategy import MeshDensifyStrategy
 from signsplat.device import make_deterministic
 from signsplat.io.atomic import atomic_path
 from signsplat.io.tables import Table, register_table
-from signsplat.render import DEFAULT_EPS2D
 
 #: the SMPL-X blocks with a learning rate of their own (``train.lr_hand_poses``)
 HAND_POSES = ("left_hand_pose", "right_hand_pose")
@@ -76,17 +75,16 @@ def default_rasterizer() -> RasterizeFn:
 
 def render_gaussians(rasterize: RasterizeFn, g, b: int, viewmats: torch.Tensor, Ks: torch.Tensor,
                      width: int, height: int, background: torch.Tensor,
-                     backend: str, eps2d: float = DEFAULT_EPS2D, rasterize_mode: str = "classic"
-                     ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+                     backend: str, **raster) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Render frame ``b`` of posed Gaussians ``g`` from C cameras -> (C,H,W,3), (C,H,W,1), meta.
-    ``eps2d``: screen-space dilation in pixels^2 (see :func:`eval_eps2d`); ``rasterize_mode``:
-    "classic" or "antialiased" (the avatar's ``model.eps2d`` and ``model.rasterize_mode``)."""
+    ``raster``: the rasterizer's filter options (``eps2d``, ``rasterize_mode``: the avatar's
+    ``ModelConfig.raster_options()``; none given: the rasterizer's defaults)."""
     c = viewmats.shape[0]
     colors, alphas, meta = rasterize(
         means=g.means[b], quats=g.quats[b], scales=g.scales[b], opacities=g.opacities[b],
         colors=g.colors[b], viewmats=viewmats, Ks=Ks, width=width, height=height,
         sh_degree=g.sh_degree, backgrounds=background[None].expand(c, -1), backend=backend,
-        eps2d=eps2d, rasterize_mode=rasterize_mode,
+        **raster,
     )
     meta.setdefault("width", width)
     meta.setdefault("height", height)
@@ -282,8 +280,7 @@ class AvatarTrainer:
                                                 self.Ks[view_i:view_i + 1], self.data.width,
                                                 self.data.height, self.background,
                                                 self.cfg.train.render_backend,
-                                                self.cfg.model.eps2d,
-                                                self.cfg.model.rasterize_mode)
+                                                **self.cfg.model.raster_options())
         if self.cfg.strategy.enabled:
             self.strategy.step_pre_backward(meta)
         render = colors[0].permute(2, 0, 1)[None].clamp(0, 1)

@@ -283,8 +283,7 @@ class AvatarRenderer:
         renderer = cls(model, body, identity, camera, cfg.model.sh_degree,
                        cfg.train.background if background is None else background,
                        cfg.train.render_backend if backend is None else backend, device,
-                       raster={"eps2d": cfg.model.eps2d,
-                               "rasterize_mode": cfg.model.rasterize_mode})
+                       raster=cfg.model.raster_options())
         renderer.scene = str(state.get("scene", ""))
         return renderer
 

@@ -58,8 +58,8 @@ def scene(tiny_body_path):
                 o = body(**p)
                 g = teacher(o.v_shaped, o.vertices, o.transforms, p["transl"], 0)
                 col, _, _ = render_gaussians(rasterization, g, 0, vm[c:c + 1], K[c:c + 1], SIZE,
-                                             SIZE, torch.ones(3), "cpu", cfg.model.eps2d,
-                                             cfg.model.rasterize_mode)
+                                             SIZE, torch.ones(3), "cpu",
+                                             **cfg.model.raster_options())
                 row.append(col[0])
             imgs.append(torch.stack(row))
     return body, make_scene(torch.stack(imgs), vm, K, smplx)
@@ -330,8 +330,7 @@ def test_colour_init_from_images_starts_closer_to_the_images(scene):
                 for v in range(3):
                     col, _, _ = render_gaussians(rasterization, g, 0, data.viewmats[v:v + 1],
                                                  data.Ks[v:v + 1], SIZE, SIZE, torch.ones(3),
-                                                 "cpu", tr.cfg.model.eps2d,
-                                                 tr.cfg.model.rasterize_mode)
+                                                 "cpu", **tr.cfg.model.raster_options())
                     gt = data.images[v, int(f)].float() / 255
                     errs.append(float((col[0] - gt).abs().mean()))
         return np.mean(errs)
@@ -361,7 +360,7 @@ def test_rendering_above_the_training_resolution_keeps_the_dilation_footprint(sc
         Ks = K.clone()
         Ks[:, :2] *= size / SIZE
         _, alpha, _ = render_gaussians(rasterization, g, 0, vm, Ks, size, size, torch.ones(3),
-                                       "cpu", eps)
+                                       "cpu", eps2d=eps)
         cover.append(float(alpha.mean()))
     assert cover[1] < 0.8 * cover[0], cover  # holes at twice the size with the same dilation
     assert cover[2] > 0.9 * cover[0], cover
