@@ -85,6 +85,20 @@ def test_slurm_profile_dry_run_gives_every_job_its_resources(tmp_path):
         if rule in ("train_avatar", "evaluate_avatar"):
             assert "gpu=1" in res_text and "slurm_partition=gpu" in res_text
     assert {"body_model", "simulate"} <= seen
+    # the perception rules are not jobs of their own: one group job per sequence holds them
+    assert not seen & PERCEPTION, seen & PERCEPTION
+    groups = re.split(r"^.*Group job perception .*$", res.stdout, flags=re.M)[1:]
+    scenes = []
+    for group in groups:
+        members = re.findall(r"^ {4}rule (\w+):\n(?: {8}.*\n)*? {8}wildcards: scene=(\w+)",
+                             group, re.M)
+        assert sorted(r for r, _ in members) == sorted(PERCEPTION), members
+        assert len({s for _, s in members}) == 1, members
+        scenes.append(members[0][1])
+    assert sorted(scenes) == ["single", "studio6"]  # the default run's two sequences
+
+
+PERCEPTION = {"segment", "detect_keypoints", "perception_eval"}
 
 
 def test_unchanged_rerun_does_nothing_and_one_changed_sequence_reruns_alone(tmp_path, assets):

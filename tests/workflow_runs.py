@@ -78,19 +78,22 @@ def proxy_body(tmp_path_factory) -> Path:
     return Path(shared_once(tmp_path_factory, "proxy_body", write))
 
 
-def tiny_config(work: Path, name: str = "config.yaml", body: Path | None = None) -> Path:
+def tiny_config(work: Path, name: str = "config.yaml", body: Path | None = None,
+                single_view: bool = True) -> Path:
     """Two tiny sequences end to end: `tiny` (config/scenes/tiny.yaml: 2 views x 4 frames) and
     `tiny1` (1 view, another body, appearance, gloss and seed: the single-view fit), with the
     smallest fit, avatar (4 steps) and stitching settings; results and report under ``work``.
     With ``body`` (the session's proxy body file) the body_model rule checks and copies that
-    file, as for a user's SMPL-X file, instead of building the same proxy again."""
+    file, as for a user's SMPL-X file, instead of building the same proxy again. Without
+    ``single_view``, `tiny` alone (its outputs are the same as in the run of both)."""
     spec = yaml.safe_load((ROOT / "config" / "scenes" / "tiny.yaml").read_text())
     spec.update(seed=11, cameras={**spec["cameras"], "count": 1},
                 signer={"betas": [-0.3, 0.2] + [0.0] * 8, "appearance_seed": 3},
                 motion={**spec["motion"], "glosses": ["SCHOOL"]})
     (work / "tiny1.yaml").write_text(yaml.safe_dump(spec))
     (work / "sequences.tsv").write_text(
-        f"sequence\tsource\tspec\ntiny1\tsynthetic\t{work / 'tiny1.yaml'}\n")
+        "sequence\tsource\tspec\n"
+        + (f"tiny1\tsynthetic\t{work / 'tiny1.yaml'}\n" if single_view else ""))
     cfg = {
         "results": str(work / "results"), "sequences": str(work / "sequences.tsv"),
         "scenes": ["tiny"],

@@ -1,7 +1,9 @@
 """The workflow through a real SLURM scheduler (a single-node cluster on this machine, see
-conftest.py) with the shipped profile (profiles/slurm): two tiny sequences end to end, every
-job a SLURM job with what it asked for, the perception group one job per sequence, outputs
-equal to a local run's, an injected crash retried, and a cancelled job redone cleanly."""
+conftest.py) with the shipped profile (profiles/slurm): the tiny multi-view sequence end to end
+(every rule of the default run has a job in it), every job a SLURM job with what it asked
+for, the perception group one SLURM job, outputs equal to the local run's, an injected crash
+retried, and a cancelled job redone cleanly. (How the profile groups two sequences' perception
+is checked by the dry run in tests/test_batch.py.)"""
 
 import json
 import re
@@ -31,13 +33,13 @@ from .slurm_helpers import (ACCOUNT, PARTITION, ROOT, fault_env, logged_jobs, sl
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
-# The crash injected into the SLURM run: fit_smplx of tiny1 dies after its first file.
-FAULT = "fail-once:fit:/tiny1/fit:1"
+# The crash injected into the SLURM run: fit_smplx of tiny dies after its first file.
+FAULT = "fail-once:fit:/tiny/fit:1"
 
 
 def _slurm_run(work: Path, body: Path) -> dict:
     work.mkdir(parents=True, exist_ok=True)
-    cfg = tiny_config(work, body=body)
+    cfg = tiny_config(work, body=body, single_view=False)
     t0 = time.time()
     res = snakemake("--configfile", str(cfg), *TINY_THREADS, *slurm_args(work / "slurm_logs"),
                     env=fault_env(FAULT, work / "fault"))
@@ -48,8 +50,8 @@ def _slurm_run(work: Path, body: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def slurm_run(slurm_cluster, tmp_path_factory):
-    """The two tiny sequences through the local cluster (once per session), with fit_smplx
-    of tiny1 made to crash once."""
+    """The tiny multi-view sequence through the local cluster (once per session), with
+    fit_smplx made to crash once."""
     body = proxy_body(tmp_path_factory)
     run = shared_once(tmp_path_factory, "slurm_run", lambda work: _slurm_run(work, body))
     work, log = Path(run["work"]), run["log"]
@@ -64,7 +66,8 @@ def slurm_run(slurm_cluster, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory):
-    """The same two sequences run locally (once per session, tests/workflow_runs.py)."""
+    """The two tiny sequences run locally (once per session, tests/workflow_runs.py), of
+    which the SLURM run has the multi-view one."""
     work = tiny_local_run(tmp_path_factory)
     return SimpleNamespace(work=work, results=work / "results")
 
@@ -105,11 +108,11 @@ def test_every_rule_ran_as_a_slurm_job_with_what_it_asked_for(slurm_run):
     assert set(heads["partition"]) == {"gpu", PARTITION}
 
 
-def test_perception_ran_as_one_slurm_job_per_sequence(slurm_run):
+def test_perception_ran_as_one_slurm_job(slurm_run):
     members = [j for j in slurm_run.jobs if j["in_group"]]
     assert {j["rule"] for j in members} == {"segment", "detect_keypoints", "perception_eval"}
     scenes = {j["wildcards"]["scene"] for j in members}
-    assert scenes == {"tiny", "tiny1"}
+    assert scenes == {"tiny"}
     heads = slurm_run.heads
     groups = heads[heads["comment"].str.startswith("rule_perception")]
     assert len(groups) == len(scenes)
@@ -141,13 +144,13 @@ def test_a_job_that_crashed_once_was_retried_and_the_run_completed(slurm_run):
     reached = json.loads((slurm_run.marks / "reached").read_text())
     assert (slurm_run.marks / "failed").exists() and len(reached["written"]) == 1
     heads = slurm_run.heads
-    fits = heads[heads["comment"] == "rule_fit_smplx_wildcards_tiny1"]
+    fits = heads[heads["comment"] == "rule_fit_smplx_wildcards_tiny"]
     crashed = fits.loc[reached["slurm_job_id"]]
     assert crashed["state"] == "FAILED"
     later = fits[fits.index.astype(int) > int(reached["slurm_job_id"])]
     assert list(later["state"]) == ["COMPLETED"]
     assert "Trying to restart" in slurm_run.log
-    fit = slurm_run.results / "tiny1" / "fit"
+    fit = slurm_run.results / "tiny" / "fit"
     assert (fit / "smplx_fit.parquet").is_file() and (fit / "fit_eval.parquet").is_file()
     assert not [p for p in slurm_run.results.rglob("*") if is_temporary(p)]
 
@@ -237,6 +240,9 @@ def test_outputs_equal_a_local_run(local_run, slurm_run):
     skip = ("_logs", "_benchmarks")
     files_a = {p.relative_to(a) for p in a.rglob("*") if p.is_file() and p.relative_to(a).parts[0] not in skip}
     files_b = {p.relative_to(b) for p in b.rglob("*") if p.is_file() and p.relative_to(b).parts[0] not in skip}
+    # the local run has the single-view sequence too
+    files_b = {rel for rel in files_b if rel.parts[0] in {"_assets", "tiny"}}
+    assert {rel.parts[0] for rel in files_a} == {"_assets", "tiny"}
     assert files_a == files_b, files_a ^ files_b
     kinds = {}
     for rel in sorted(files_a):
