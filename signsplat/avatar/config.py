@@ -10,7 +10,6 @@ nothing here is global state.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, get_origin, get_type_hints
 
@@ -214,10 +213,9 @@ def _build(cls, data: dict):
 
 def resolve(data: dict | None, source: str = "<avatar config>") -> dict:
     """Apply the chosen profile under the user's values, validate, fill defaults."""
-    data = copy.deepcopy(data or {})
+    data = data or {}
     profile = data.get("profile", "demo")
-    validate(copy.deepcopy(data), SCHEMA, source)  # names the bad key before merging
-    merged = deep_merge(PROFILES.get(profile, {}), data)
+    merged = deep_merge(PROFILES.get(profile, {}), data)  # the user's values win
     merged["profile"] = profile
     return validate(merged, SCHEMA, source)
 

@@ -81,7 +81,7 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     ONNX files, or the pretrained ones in ``perception.pretrained.cache``."""
     if detectors == "pretrained":
         from signsplat.perception.pretrained.fetch import load_manifest
-        from signsplat.perception.pretrained.keypointer import MODELS
+        from signsplat.perception.pretrained.graphs import MODELS
 
         cache = Path(cfg["pretrained"]["cache"])
         _, entries = load_manifest()

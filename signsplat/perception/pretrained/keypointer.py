@@ -48,6 +48,16 @@ from signsplat.body.joints import NUM_KEYPOINTS
 from signsplat.perception.contracts import ModelContractError, open_session
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.fetch import FetchError, model_file
+from signsplat.perception.pretrained.graphs import (
+    FACE_DET,
+    FACE_LMK,
+    HAND_LMK,
+    HAND_RECROP,
+    MODELS,
+    PALM_DET,
+    POSE_DET,
+    POSE_LMK,
+)
 from signsplat.perception.still_hands import drop_still_hands
 from signsplat.perception.pretrained.wholebody import (
     POSE_ELBOW,
@@ -61,18 +71,6 @@ from signsplat.perception.pretrained.wholebody import (
     to_coco_wholebody,
 )
 
-# Model facts (MediaPipe's graphs): input size, value range, crop border, SSD strides.
-POSE_DET = dict(name="pose_detection", size=224, range=(-1.0, 1.0), border="zero",
-                strides=(8, 16, 32, 32, 32), keypoints=4)
-POSE_LMK = dict(name="pose_landmark_full", size=256, range=(0.0, 1.0))
-HAND_RECROP = dict(name="hand_recrop", size=256, range=(0.0, 1.0))
-HAND_LMK = dict(name="hand_landmark_full", size=224, range=(0.0, 1.0))
-PALM_DET = dict(name="palm_detection_full", size=192, range=(0.0, 1.0), border="zero",
-                strides=(8, 16, 16, 16), keypoints=7)
-FACE_DET = dict(name="face_detection_short_range", size=128, range=(-1.0, 1.0), border="zero",
-                strides=(8, 16, 16, 16), keypoints=6)
-FACE_LMK = dict(name="face_landmark", size=192, range=(0.0, 1.0))
-MODELS = (POSE_DET, POSE_LMK, HAND_RECROP, HAND_LMK, PALM_DET, FACE_DET, FACE_LMK)
 NMS_IOU = 0.3
 
 
