@@ -56,6 +56,11 @@ def run_record(work: Path, label: str, rev: str, collect_only: bool) -> dict:
             raise SystemExit(f"{path} not found: run without --collect-only first")
         return json.loads(path.read_text())
     record = {"commit": git("rev-parse", rev), "measured": date.today().isoformat()}
+    if path.exists() and json.loads(path.read_text())["commit"] != record["commit"]:
+        # Snakemake would take that commit's finished outputs as this one's (a new worktree
+        # has no record of the code that wrote them) and the table would carry the wrong label
+        raise SystemExit(f"{path.parent} holds the runs of another commit than "
+                         f"{record['commit'][:10]}: remove {path.parent} or pass another --work")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(record))
     return record
