@@ -144,6 +144,10 @@ def open_session(path: str | os.PathLike, threads: int = 1, what: str = "model",
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = max(1, int(threads))
     opts.inter_op_num_threads = 1
+    # Pool threads sleep between parallel sections instead of spinning: beside other work
+    # (two sequences side by side, a shared node) spinning takes the cores that work needs
+    # (docs/architecture.md)
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     opts.log_severity_level = 3
     try:
         return ort.InferenceSession(str(path), sess_options=opts, providers=providers(device))

@@ -72,3 +72,13 @@ def test_dynamic_batch_model_runs_batches(models):
     assert kp.dynamic_batch and kp.input_size == (64, 48)
     sx, sy = kp.run(np.zeros((4, 3, 64, 48), np.float32))
     assert sx.shape == (4, 133, 96) and sy.shape == (4, 133, 128)
+
+
+def test_sessions_use_the_threads_asked_for_and_do_not_spin(models):
+    """Two pool threads for a two-thread stage, which sleep between parallel sections: spinning
+    takes the cores that other jobs on the machine need (benchmarks/bench_perception_threads.py)."""
+    from signsplat.perception.contracts import open_session
+
+    opts = open_session(models["rtmw"], threads=2).get_session_options()
+    assert opts.intra_op_num_threads == 2 and opts.inter_op_num_threads == 1
+    assert opts.get_session_config_entry("session.intra_op.allow_spinning") == "0"
