@@ -35,7 +35,8 @@ from pathlib import Path
 import pandas as pd
 from signsplat.perception.cli import perception_config, specs
 from signsplat.perception.stages import detect_sequence, segment_sequence
-checkout, sim, out, threads = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), int(sys.argv[4])
+checkout, sim, out = (Path(a) for a in sys.argv[1:4])
+threads = int(sys.argv[4])
 seg, kp = specs(perception_config(None))
 seg = type(seg)(**{**seg.__dict__, "path": str(checkout / seg.path)})
 kp = type(kp)(**{**kp.__dict__, "path": str(checkout / kp.path)})

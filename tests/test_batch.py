@@ -66,6 +66,9 @@ def _sim_targets(results, names):
     return [str(results / n / "sim" / "frames.parquet") for n in names]
 
 
+PERCEPTION = {"segment", "detect_keypoints", "perception_eval"}  # profiles/slurm's group
+
+
 def test_slurm_profile_dry_run_gives_every_job_its_resources(tmp_path):
     res = snakemake("-n", "--workflow-profile", "profiles/slurm", "--config",
                     f"results={tmp_path}")
@@ -96,9 +99,6 @@ def test_slurm_profile_dry_run_gives_every_job_its_resources(tmp_path):
         assert len({s for _, s in members}) == 1, members
         scenes.append(members[0][1])
     assert sorted(scenes) == ["single", "studio6"]  # the default run's two sequences
-
-
-PERCEPTION = {"segment", "detect_keypoints", "perception_eval"}
 
 
 def test_unchanged_rerun_does_nothing_and_one_changed_sequence_reruns_alone(tmp_path, assets):
