@@ -57,17 +57,24 @@ class SmplxParams(nn.Module):
         return out
 
 
+#: model settings added after avatars had been saved: a checkpoint without the key was trained
+#: with these values (the paper's pose network on the points; 3DGS's filter)
+SAVED_BEFORE = {
+    "pose_net_on": {"pose_net_on": "points"},
+    "eps2d": {"eps2d": DEFAULT_EPS2D, "rasterize_mode": "classic"},
+}
+
+
 def load_avatar(path: str | os.PathLike, body, device: torch.device | str = "cpu"):
     """A saved ``checkpoint.pt`` ready to render: (model, SMPL-X parameters module,
     checkpoint dict, :class:`~signsplat.avatar.config.AvatarConfig`)."""
     state = torch.load(path, map_location=device, weights_only=False)
     saved = state["config"]
-    if "pose_net_on" not in saved.get("model", {}):  # saved before the setting: the paper's
-        saved = {**saved, "model": {**saved.get("model", {}), "pose_net_on": "points"}}
-    if "eps2d" not in saved.get("model", {}):  # trained before the setting: 3DGS's filter
-        saved = {**saved, "model": {**saved.get("model", {}), "eps2d": DEFAULT_EPS2D,
-                                    "rasterize_mode": "classic"}}
-    cfg = avatar_config(saved)
+    model_cfg = dict(saved.get("model", {}))
+    for key, before in SAVED_BEFORE.items():
+        if key not in model_cfg:
+            model_cfg.update(before)
+    cfg = avatar_config({**saved, "model": model_cfg})
     smplx_state = state["smplx"]
     learnable = cfg.train.finetune_smplx
     params = {k: v for k, v in smplx_state.items()}

@@ -217,17 +217,17 @@ class AvatarTrainer:
         if nets:
             groups.append({"params": nets, "lr": t.lr_network, "name": "networks"})
         if self.smplx.learnable:
-            shape = [p for n, p in self.smplx.named_parameters() if n == "betas"]
-            hands = [p for n, p in self.smplx.named_parameters() if n in HAND_POSES]
-            per_frame = [p for n, p in self.smplx.named_parameters()
-                         if n != "betas" and n not in HAND_POSES]
-            groups.append({"params": per_frame, "lr": t.lr_smplx, "name": "smplx"})
-            if hands:
-                groups.append({"params": hands, "name": "hand_poses",
-                               "lr": t.lr_smplx if t.lr_hand_poses is None else t.lr_hand_poses})
-            if shape:
-                groups.append({"params": shape, "name": "betas",
-                               "lr": t.lr_smplx if t.lr_betas is None else t.lr_betas})
+            # blocks with a rate of their own (None: lr_smplx); the rest at lr_smplx
+            own = (("hand_poses", HAND_POSES, t.lr_hand_poses), ("betas", ("betas",), t.lr_betas))
+            named = list(self.smplx.named_parameters())
+            taken = {n for _, names, _ in own for n in names}
+            groups.append({"params": [p for n, p in named if n not in taken],
+                           "lr": t.lr_smplx, "name": "smplx"})
+            for name, names, lr in own:
+                params = [p for n, p in named if n in names]
+                if params:
+                    groups.append({"params": params, "name": name,
+                                   "lr": t.lr_smplx if lr is None else lr})
         if self.cameras.enabled:
             groups.append({"params": [self.cameras.raw], "lr": t.lr_cameras, "name": "cameras"})
         for group in groups:
