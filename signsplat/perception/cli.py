@@ -144,7 +144,16 @@ def train_detectors(argv: list[str]) -> int:
     p.add_argument("--resume-phase", type=int, choices=[1, 2], default=None,
                    help="the phase --resume-keypoints was saved after (default: from its "
                         "name, .1.pt or .2.pt)")
+    p.add_argument("--adapt-from", default=None, metavar="KEYPOINTS_ONNX",
+                   help="go on training this exported keypoint model on the scenes "
+                        "(perception.train.kp_adapt_*) instead of training from scratch; "
+                        "the held-out check uses the segmenter in --out-dir, else the shipped")
     a = p.parse_args(argv)
+    if a.adapt_from and (a.which != "keypoints" or a.resume_keypoints):
+        p.error("--adapt-from trains the keypoint model only: give --which keypoints and no "
+                "--resume-keypoints")
+    if a.adapt_from and not Path(a.adapt_from).is_file():
+        p.error(f"--adapt-from: no file {a.adapt_from}")
     resume = {}
     if a.resume_keypoints:
         phase = a.resume_phase
@@ -173,7 +182,10 @@ def train_detectors(argv: list[str]) -> int:
     if a.which in ("both", "segmenter"):
         jobs.append(TrainJob("segmenter", train_dirs, tcfg, str(out_dir / "segmenter.onnx"),
                              str(work / "logs" / "segmenter.log")))
-    if a.which in ("both", "keypoints"):
+    if a.adapt_from:
+        jobs.append(TrainJob("adapt", train_dirs, tcfg, str(out_dir / "keypoints.onnx"),
+                             str(work / "logs" / "keypoints.log"), {"init": a.adapt_from}))
+    elif a.which in ("both", "keypoints"):
         jobs.append(TrainJob("keypoints", train_dirs, tcfg, str(out_dir / "keypoints.onnx"),
                              str(work / "logs" / "keypoints.log"), resume))
     workers = max(1, min(len(jobs), threads))
@@ -202,11 +214,12 @@ def validate_on_held_out(sim_dirs: list[str], model_dir: Path, work: Path, cfg: 
     from signsplat.perception.stages import detect_sequence, segment_sequence
 
     seg, kp = specs(cfg)
-    seg = dataclasses.replace(seg, path=str(model_dir / "segmenter.onnx"))
+    if (model_dir / "segmenter.onnx").exists():  # else the configured one (--adapt-from)
+        seg = dataclasses.replace(seg, path=str(model_dir / "segmenter.onnx"))
     kp = dataclasses.replace(kp, path=str(model_dir / "keypoints.onnx"), input_size=None)
     rows = []
     for d in sim_dirs:
-        if not (model_dir / "segmenter.onnx").exists() or not (model_dir / "keypoints.onnx").exists():
+        if not Path(seg.path).exists() or not Path(kp.path).exists():
             break
         out = work / Path(d).parent.name
         segment_sequence(Path(d) / "frames.parquet", out, seg, threads, progress=False)

@@ -70,9 +70,21 @@ def load_scene(sim_dir: str | os.PathLike, stride: int = 1, max_views: int | Non
                     np.array([name] * len(images)))
 
 
+def _pad_to(a: np.ndarray, h: int, w: int) -> np.ndarray:
+    """``a`` (F, H, W, ...) with zeros added below and to the right up to (h, w)."""
+    pad = [(0, 0), (0, h - a.shape[1]), (0, w - a.shape[2])] + [(0, 0)] * (a.ndim - 3)
+    return np.pad(a, pad) if h > a.shape[1] or w > a.shape[2] else a
+
+
 def concat(sets: list[FrameSet]) -> FrameSet:
-    return FrameSet(*(np.concatenate([getattr(s, f) for s in sets])
-                      for f in ("images", "masks", "keypoints", "visible", "scene")))
+    """One frame set of several. Scenes of other image sizes are padded with black below and
+    to the right to the largest: a keypoint crop sees black outside the image either way."""
+    h = max(s.images.shape[1] for s in sets)
+    w = max(s.images.shape[2] for s in sets)
+    return FrameSet(np.concatenate([_pad_to(s.images, h, w) for s in sets]),
+                    np.concatenate([_pad_to(s.masks, h, w) for s in sets]),
+                    *(np.concatenate([getattr(s, f) for s in sets])
+                      for f in ("keypoints", "visible", "scene")))
 
 
 # --- photometric augmentation --------------------------------------------------------------

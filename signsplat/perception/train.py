@@ -72,6 +72,8 @@ class TrainConfig:
     kp_hand_steps: int  # phase 3: the hand network alone (coarse stage frozen)
     kp_hand_lr: float  # phase 3 learning rate (warm-up + cosine)
     kp_hand_right_weight: float  # phase 3: right-hand loss weight (left hand 1)
+    kp_adapt_steps: int  # adapting an exported model to new scenes (adapt_keypoints)
+    kp_adapt_lr: float
     checkpoint_every: int  # save a PyTorch checkpoint (out_path + '.pt') this often
     lr: float
     weight_decay: float
@@ -415,6 +417,79 @@ def train_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.Path
             "frames": len(train)}
 
 
+def keypoint_net_from_onnx(cfg: TrainConfig, path: str | os.PathLike) -> CascadeSimCC:
+    """The keypoint network with the weights of an exported ``keypoints.onnx`` of the same
+    architecture (``cfg``).
+
+    The exporter folds each coarse-stage batch norm into the convolution before it (the
+    convolution's weight and a ``<name>.weight_bias``); such a batch norm becomes the identity
+    plus that bias, so the network computes what the ONNX graph computes as long as the coarse
+    stage stays in eval mode (its batch statistics are gone). The hand network's batch norms
+    are exported whole. Raises ``ValueError`` naming the file when a weight is missing or of
+    another shape.
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    net = keypoint_net(cfg)
+    weights = {i.name: numpy_helper.to_array(i)
+               for i in onnx.load(str(path)).graph.initializer}
+    state = {k: v.clone() for k, v in net.state_dict().items()}
+    modules = list(net.named_modules())
+    for (name, mod), (after, bn) in zip(modules, modules[1:]):
+        if isinstance(mod, torch.nn.Conv2d) and f"{name}.weight_bias" in weights \
+                and isinstance(bn, torch.nn.BatchNorm2d):
+            state[f"{after}.weight"].fill_(1.0)
+            state[f"{after}.bias"] = torch.from_numpy(weights[f"{name}.weight_bias"].copy())
+            state[f"{after}.running_mean"].zero_()
+            state[f"{after}.running_var"].fill_(1.0 - bn.eps)
+    for key, value in state.items():
+        if key in weights:
+            if tuple(weights[key].shape) != tuple(value.shape):
+                raise ValueError(f"{path}: weight {key} has shape {weights[key].shape}, the "
+                                 f"configured network {tuple(value.shape)}")
+            state[key] = torch.from_numpy(weights[key].copy())
+        elif not key.endswith("num_batches_tracked") and key.rsplit(".", 1)[0] not in {
+                a for (n, m), (a, b) in zip(modules, modules[1:])
+                if f"{n}.weight_bias" in weights}:
+            raise ValueError(f"{path}: no weight {key}; is it a keypoint model of this "
+                             "architecture (perception.train.kp_*)?")
+    net.load_state_dict(state)
+    return net
+
+
+def adapt_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
+                    log=None, init: str | os.PathLike = "", export: bool = True) -> dict:
+    """Go on training an exported keypoint model (``init``, ONNX) on new scenes ``train``.
+
+    ``kp_adapt_steps`` steps at ``kp_adapt_lr`` (warm-up + cosine), both stages learning, hand
+    crops placed as in phase 2, the right hand weighted as in phase 3; the coarse stage keeps
+    its batch norms frozen (see :func:`keypoint_net_from_onnx`). Use it to widen what a
+    shipped model has seen (other rigs, image sizes) without training from scratch.
+    """
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    net = keypoint_net_from_onnx(cfg, init)
+    net.train()
+    net.coarse.eval()
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.kp_adapt_lr, weight_decay=cfg.weight_decay)
+    steps, losses = _keypoint_phase(
+        net, opt, train, cfg, cfg.kp_adapt_steps, cfg.kp_adapt_lr,
+        np.random.default_rng(cfg.seed + 32), cfg.kp_max_minutes or cfg.max_minutes,
+        cfg.kp_finetune_pred_centers, "adapt", out_path, log,
+        right_weight=cfg.kp_hand_right_weight)
+    seconds = time.perf_counter() - t0
+    torch.save(net.state_dict(), str(out_path) + ".pt")
+    if export:
+        export_onnx(net, out_path, cfg.kp_input, ["simcc_x", "simcc_y"], atol=2e-3)
+    return {"model": "keypoints", "adapted_from": str(init), "steps": steps,
+            "batch": cfg.kp_batch, "train_seconds": round(seconds, 1),
+            "first_loss": float(np.mean(losses[:10])), "final_loss": float(np.mean(losses[-50:])),
+            "frames": len(train)}
+
+
 @dataclass
 class TrainJob:
     """One model to train in its own process (picklable)."""
@@ -435,7 +510,8 @@ def run_job(job: TrainJob) -> dict:
         fs = D.concat([D.load_scene(d, job.cfg.frame_stride) for d in job.sim_dirs])
         _log(f"{job.which}: {len(fs)} frames from {len(job.sim_dirs)} scenes loaded in "
              f"{time.perf_counter() - t0:.0f}s", log)
-        fn = train_segmenter if job.which == "segmenter" else train_keypoints
+        fn = {"segmenter": train_segmenter, "keypoints": train_keypoints,
+              "adapt": adapt_keypoints}[job.which]
         summary = fn(fs, job.cfg, job.out_path, log, **job.extra)
         summary["scenes"] = [Path(d).parent.name for d in job.sim_dirs]
         summary["config"] = {k: (list(v) if isinstance(v, tuple) else v)

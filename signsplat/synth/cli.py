@@ -111,18 +111,21 @@ def sheet(argv: list[str]) -> int:
 def simulate_training_set(argv: list[str]) -> int:
     """``signsplat simulate-training-set --count N --seed S --body NPZ --glosses PARQUET
     --out-dir DIR``: the detector training scenes, one ``DIR/<name>/sim`` folder each."""
+    from signsplat.synth.training_set import CAMERA_SPACES, simulate_training_set as run
+
     parser = _simulator_parser("simulate-training-set", "Simulate the detector training scenes.",
                                True)
     parser.add_argument("--count", type=int, required=True, help="number of scenes")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene specs")
     parser.add_argument("--out-dir", required=True, help="folder for the scene folders")
+    parser.add_argument("--cameras", choices=CAMERA_SPACES, default="studio",
+                        help="camera space: studio (the simulator's framing, 256 px) or wide "
+                             "(any rig: 1.5-4 m, rings, small and non-square images)")
     args = parser.parse_args(argv)
     if args.count < 2:
         parser.error(f"--count must be >= 2 (training and held-out scenes), got {args.count}")
 
-    from signsplat.synth.training_set import simulate_training_set as run
-
     dirs = run(args.count, args.seed, args.body, args.glosses, args.out_dir, args.threads,
-               progress=not args.no_progress)
+               progress=not args.no_progress, cameras=args.cameras)
     print(f"{len(dirs)} training scenes in {args.out_dir}")
     return 0

@@ -17,19 +17,72 @@ from signsplat.config import validate
 from signsplat.motion.clips import load_gloss_library
 
 
+CAMERA_SPACES = ("studio", "wide")
+
+
+def _studio_cameras(rng: np.random.Generator, ring: bool) -> dict:
+    """2-3 cameras around the simulator's framing (upper body, 30 degrees at 2 m), 256 px;
+    ``ring``: evenly on a full ring instead of an arc."""
+    return {"count": int(rng.integers(2, 4)),
+            "layout": "ring" if ring else "arc",
+            "arc_degrees": round(float(rng.uniform(30, 170)), 1),
+            "distance": round(float(rng.uniform(1.75, 2.3)), 3),
+            "height": round(float(rng.uniform(1.25, 1.45)), 3),
+            "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
+                       round(float(rng.uniform(1.25, 1.4)), 3), 0.0],
+            "width": 256,
+            "height_px": 256,
+            "fov_degrees": round(float(rng.uniform(26, 36)), 1)}
+
+
+def _wide_cameras(rng: np.random.Generator) -> dict:
+    """2-4 cameras anywhere a studio puts them: arcs of 30-240 degrees around any heading and
+    30 % full rings (views from the side and behind), unevenly spaced; 1.5-4 m; camera
+    heights 1.05-1.85 m looking at 1.2-1.4 m; the image height covering 0.9-1.8 m of the
+    signer; images of 144-320 px on either side, square or not."""
+    count = int(rng.integers(2, 5))
+    if rng.random() < 0.3:
+        base = np.arange(count) * 360.0 / count
+        gap = 360.0 / count
+    else:
+        arc = float(rng.uniform(30, 240))
+        base = np.linspace(-arc / 2, arc / 2, count)
+        gap = arc / (count - 1)
+    azimuths = base + rng.uniform(-40, 40) + rng.uniform(-0.3, 0.3, count) * gap
+    distance = float(rng.uniform(1.5, 4.0))
+    framing = float(rng.uniform(0.9, 1.8))
+    sides = rng.choice([144, 160, 192, 208, 240, 256, 320], size=2)
+    return {"count": count,
+            "distance": round(distance, 3),
+            "height": round(float(rng.uniform(1.05, 1.85)), 3),
+            "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
+                       round(float(rng.uniform(1.2, 1.4)), 3), 0.0],
+            "width": int(sides[0]),
+            "height_px": int(sides[1]),
+            "fov_degrees": round(float(np.degrees(2 * np.arctan(framing / 2 / distance))), 2),
+            "views": [{"azimuth_degrees": round(float((a + 180) % 360 - 180), 2)}
+                      for a in azimuths]}
+
+
 def training_scene_specs(count: int, seed: int, glosses: list[str],
-                         letters: list[str] | tuple = ()) -> list[dict]:
+                         letters: list[str] | tuple = (), cameras: str = "studio") -> list[dict]:
     """``count`` scene specs (scene schema) drawn from a seeded generator.
 
     Seeds, signer shapes and appearance seeds start at 1000 (the evaluation scenes in
-    config/scenes use small seeds and their own appearance seeds). The cameras vary around the
-    simulator's framing (upper body, 30 degree field of view at 2 m): count, arc, distance,
-    height, target and field of view; signs are mixed with fingerspelled letters (about half
-    the scenes spell 2-4 ``letters`` between signs, for the many hand shapes); lighting
-    (direction, ambient, intensity, colour), background, sensor noise, motion blur, occluders
-    and camera jitter are drawn from the simulator's effect registry.
+    config/scenes use small seeds and their own appearance seeds; the ``wide`` set starts at
+    3000). ``cameras`` is the camera space: ``studio`` varies count, arc, distance, height,
+    target and field of view around the simulator's framing; ``wide`` covers the rigs of the
+    generalisation suite's kind (see :func:`_wide_cameras`). Signs are mixed with
+    fingerspelled letters (about half the scenes spell 2-4 ``letters`` between signs, for the
+    many hand shapes); lighting (direction, ambient, intensity, colour), background, sensor
+    noise, motion blur, occluders and camera jitter are drawn from the simulator's effect
+    registry.
     """
-    rng = np.random.default_rng(10_000 + seed)
+    if cameras not in CAMERA_SPACES:
+        raise ValueError(f"camera space {cameras!r}: allowed values are {list(CAMERA_SPACES)}")
+    wide = cameras == "wide"
+    rng = np.random.default_rng(10_000 + seed + (77 if wide else 0))
+    first = 3000 if wide else 1000
     specs = []
     for i in range(count):
         n_gloss = int(rng.integers(2, 5))
@@ -39,7 +92,7 @@ def training_scene_specs(count: int, seed: int, glosses: list[str],
             spelled = [str(c) for c in rng.choice(list(letters), size=int(rng.integers(2, 5)))]
             at = int(rng.integers(0, len(chosen) + 1))
             chosen = chosen[:at] + spelled + chosen[at:]
-        ring = rng.random() < 0.1
+        ring = not wide and rng.random() < 0.1  # drawn here: the studio specs stay as they were
         light = {"direction": [round(float(v), 3) for v in
                                (rng.uniform(-0.8, 0.8), rng.uniform(0.0, 1.0),
                                 rng.uniform(0.4, 1.0))],
@@ -52,32 +105,21 @@ def training_scene_specs(count: int, seed: int, glosses: list[str],
                                            "color": [round(float(c), 3)
                                                      for c in rng.uniform(0.05, 0.95, 3)]}})
         else:
-            effects.append({"background": {"kind": "textured", "seed": int(1000 + i)}})
+            effects.append({"background": {"kind": "textured", "seed": int(first + i)}})
         if rng.random() < 0.6:
             effects.append({"sensor_noise": {"sigma": round(float(rng.uniform(0.003, 0.03)), 4)}})
         for name, p in (("motion_blur", 0.3), ("occluder", 0.25), ("camera_jitter", 0.3)):
             if rng.random() < p:
                 effects.append(name)
         specs.append({
-            "name": f"train{i:03d}",
-            "seed": int(1000 + i),
+            "name": f"{'wide' if wide else 'train'}{i:03d}",
+            "seed": int(first + i),
             "fps": 25,
             "max_frames": 50,
-            "cameras": {
-                "count": int(rng.integers(2, 4)),
-                "layout": "ring" if ring else "arc",
-                "arc_degrees": round(float(rng.uniform(30, 170)), 1),
-                "distance": round(float(rng.uniform(1.75, 2.3)), 3),
-                "height": round(float(rng.uniform(1.25, 1.45)), 3),
-                "target": [round(float(rng.uniform(-0.05, 0.05)), 3),
-                           round(float(rng.uniform(1.25, 1.4)), 3), 0.0],
-                "width": 256,
-                "height_px": 256,
-                "fov_degrees": round(float(rng.uniform(26, 36)), 1),
-            },
+            "cameras": _wide_cameras(rng) if wide else _studio_cameras(rng, ring),
             "signer": {
                 "betas": [round(float(b), 3) for b in rng.normal(0, 0.8, 10)],
-                "appearance_seed": int(1000 + i),
+                "appearance_seed": int(first + i),
                 "expression_scale": round(float(rng.uniform(0.5, 1.5)), 2),
             },
             "motion": {"glosses": chosen, "hold_frames": int(rng.integers(0, 4))},
@@ -88,8 +130,10 @@ def training_scene_specs(count: int, seed: int, glosses: list[str],
 
 def simulate_training_set(count: int, seed: int, body: str | os.PathLike,
                           glosses: str | os.PathLike, out_dir: str | os.PathLike,
-                          threads: int = 1, progress: bool = True) -> list[Path]:
-    """Simulate (or reuse) the ``count`` training scenes into ``out_dir/<name>/sim``.
+                          threads: int = 1, progress: bool = True,
+                          cameras: str = "studio") -> list[Path]:
+    """Simulate (or reuse) the ``count`` training scenes of camera space ``cameras`` (see
+    :func:`training_scene_specs`) into ``out_dir/<name>/sim``.
 
     A folder whose ``spec.json`` equals its spec and whose ground truth exists is kept, so a
     resumed run simulates only what is missing. Returns the ``sim`` folders in spec order.
@@ -100,7 +144,7 @@ def simulate_training_set(count: int, seed: int, body: str | os.PathLike,
     names = sorted(g for g, clip in library.items() if clip.kind != "letter")
     letters = sorted(g for g, clip in library.items() if clip.kind == "letter")
     out = []
-    for spec in training_scene_specs(count, seed, names, letters):
+    for spec in training_scene_specs(count, seed, names, letters, cameras):
         sim = Path(out_dir) / spec["name"] / "sim"
         spec_file = sim / "spec.json"
         text = json.dumps(spec, sort_keys=True)

@@ -11,7 +11,13 @@ from signsplat.perception.contracts import (
     load_keypointer,
     load_segmenter,
 )
-from signsplat.perception.train import TrainConfig, train_keypoints, train_segmenter
+from signsplat.perception.train import (
+    TrainConfig,
+    adapt_keypoints,
+    keypoint_net_from_onnx,
+    train_keypoints,
+    train_segmenter,
+)
 
 # Small networks, 64 px images and a few steps: each training below takes seconds. Phase 3
 # (the hand network alone) runs only where a test asks for it.
@@ -32,6 +38,18 @@ def test_keypoint_samples_and_targets(tmp_path, scene_factory):
     j, i = np.unravel_index(np.argmax(t[k]), t[k].shape)
     assert abs(4 * i + 1.5 - pts[k, 0]) <= 2.5 and abs(4 * j + 1.5 - pts[k, 1]) <= 2.5
     assert np.all(t[~vis] == 0) and t.max() <= 1
+
+
+def test_scenes_of_other_image_sizes_train_together_and_give_the_same_crops(tmp_path,
+                                                                            scene_factory):
+    small = D.load_scene(scene_factory(tmp_path / "a", frames=2, size=64))
+    large = D.load_scene(scene_factory(tmp_path / "b", frames=2, size=96, seed=1))
+    both = D.concat([small, large])
+    assert both.images.shape[1:3] == (96, 96) and len(both) == len(small) + len(large)
+    for i in range(len(small)):
+        a = D.keypoint_sample(small, i, (64, 48), np.random.default_rng(i))
+        b = D.keypoint_sample(both, i, (64, 48), np.random.default_rng(i))
+        assert np.array_equal(a[0], b[0]) and np.allclose(a[1], b[1])
 
 
 def test_tiny_training_lowers_both_losses(tmp_path, scene_factory):
@@ -75,6 +93,31 @@ def test_train_detectors_command_on_given_scenes_exports_files_that_pass_the_con
     assert kp.input_size == (64, 48) and kp.dynamic_batch
     sx, sy = kp.run(np.zeros((2, 3, 64, 48), np.float32))
     assert sx.min() >= 0 and sx.max() <= 1  # sigmoid inside the graph: scores are probabilities
+
+    # The exported model read back into PyTorch (its coarse batch norms folded by the
+    # exporter) computes what the graph computes, and adapting it to more scenes trains both
+    # stages but leaves the folded batch norms as they are.
+    import torch
+
+    tcfg = TrainConfig.from_dict({**cfg["train"], "kp_adapt_steps": 3})
+    net = keypoint_net_from_onnx(tcfg, out / "keypoints.onnx").eval()
+    x = np.random.default_rng(0).uniform(-2, 2, (2, 3, 64, 48)).astype(np.float32)
+    with torch.no_grad():
+        mine = [t.numpy() for t in net(torch.from_numpy(x))]
+    for a, b in zip(kp.run(x), mine):
+        assert np.abs(a - b).max() < 1e-3  # the export checks its graph to 2e-3
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    fs = D.concat([D.load_scene(d) for d in dirs[:2]])
+    summary = adapt_keypoints(fs, tcfg, tmp_path / "adapted.onnx", init=out / "keypoints.onnx",
+                              export=False)
+    assert summary["steps"] == 3 and np.isfinite(summary["final_loss"])
+    after = torch.load(tmp_path / "adapted.onnx.pt")
+    moved = {k for k in after if after[k].is_floating_point()
+             and not torch.equal(after[k], before[k])}
+    assert any(k.startswith("coarse.") for k in moved) and any(k.startswith("hand.")
+                                                                for k in moved)
+    assert not any(k.startswith("coarse.") and k.endswith(("running_mean", "running_var"))
+                   for k in moved)
 
 
 def test_segmenter_phase_two_resumes_exactly(tmp_path, scene_factory):
