@@ -190,7 +190,7 @@ def export_onnx(model: nn.Module, path, input_hw: tuple[int, int], output_names:
         got = sess.run(output_names, {"input": x.numpy()})
         for name, a, b in zip(output_names, got, ref):
             err = float(np.abs(a - b.numpy()).max())
-            if a.shape != tuple(b.shape) or err > atol:
+            if a.shape != tuple(b.shape) or not err <= atol:  # NaN fails too
                 raise RuntimeError(f"{path}: ONNX output {name} differs from PyTorch "
                                    f"(shape {a.shape} vs {tuple(b.shape)}, max error {err:.2e})")
 
@@ -213,7 +213,9 @@ def peak_subcell(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torc
     idx = flat.argmax(-1, keepdim=True)  # (N, K, 1)
     iy = torch.div(idx, w, rounding_mode="floor")
     ix = idx - iy * w
-    logp = F.logsigmoid(flat)
+    # log-sigmoid written out: exported, F.logsigmoid becomes Log(Sigmoid(x)), which is -inf
+    # where the sigmoid underflows (a part far from any peak) and then NaN in the parabola
+    logp = flat.clamp(max=0) - torch.log1p(torch.exp(-flat.abs()))
 
     def at(dx: int, dy: int) -> torch.Tensor:
         jx = (ix + dx).clamp(0, w - 1)

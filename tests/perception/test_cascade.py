@@ -116,3 +116,25 @@ def test_body_wrists_come_from_the_hand_roots_only_when_the_hand_network_is_sure
         same = np.abs(locs[:, [9, 10]] - locs[:, [91, 112]]).max() <= 0.5
         assert same == expect_equal
         assert np.isfinite(sx.numpy()).all() and np.isfinite(sy.numpy()).all()
+
+
+def test_exported_peaks_stay_finite_where_a_heatmap_is_far_below_zero(tmp_path):
+    """A part with no peak anywhere (logits of -100 and lower, as for the feet out of frame)
+    gives a finite location and a zero score in the exported graph, as in PyTorch. Exported,
+    a Log(Sigmoid) there is -inf and the sub-cell parabola NaN; the export's own check
+    refuses a graph that returns NaN where PyTorch does not."""
+    import onnxruntime as ort
+
+    from signsplat.perception.nets import export_onnx
+
+    class Peaks(torch.nn.Module):
+        def forward(self, x):
+            return peak_subcell(x * 40.0 - 200.0)  # randn * 40 - 200: far below zero
+
+    path = tmp_path / "peaks.onnx"
+    export_onnx(Peaks(), path, (8, 8), ["x", "y", "p"])
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    x = np.random.default_rng(1).normal(size=(4, 3, 8, 8)).astype(np.float32)
+    got = sess.run(None, {"input": x})
+    assert all(np.isfinite(a).all() for a in got)
+    assert np.all((got[0] >= 0) & (got[0] <= 7)) and got[2].max() < 1e-6
