@@ -17,6 +17,16 @@ from pathlib import Path
 _STALE: dict[Path, dict[str, list[Path]]] = {}
 
 
+def _file_mode() -> int:
+    """The mode a plain ``open(path, 'w')`` would give a new file under the process umask."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_MODE = _file_mode()  # read once, at import: setting the umask is process-wide
+
+
 def _temporary_target(name: str) -> str | None:
     """The target name of a temporary ``.<name>.<random>.tmp<suffix>``, else None."""
     if not (name.startswith(".") and ".tmp" in name):
@@ -63,6 +73,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # mkstemp makes the file readable by its owner only; the result gets the mode any
+        # new file gets (group members on a shared cluster read the results and reports)
+        os.chmod(tmp_path, _MODE)
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

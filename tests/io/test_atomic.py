@@ -49,3 +49,17 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
         pass
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_a_written_file_gets_the_mode_of_any_new_file(tmp_path):
+    """Not the owner-only mode of the temporary file: colleagues on a shared cluster read the
+    results and the reports. (Under a umask of 077 both are owner-only and this cannot fail.)"""
+    import os
+
+    from signsplat.io.atomic import _MODE
+
+    write_bytes_atomic(tmp_path / "a.bin", b"x")
+    with open(tmp_path / "plain.bin", "w"):
+        pass
+    assert os.stat(tmp_path / "a.bin").st_mode & 0o777 == \
+        os.stat(tmp_path / "plain.bin").st_mode & 0o777 == _MODE
