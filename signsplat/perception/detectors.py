@@ -1,7 +1,8 @@
 """Which detectors a sequence runs with, and their model specs.
 
-Each sequence uses the shipped detectors (``models/*.onnx``, trained on simulated scenes) or
-the pretrained real-world ones (MODNet and MediaPipe's models, fetched by ``signsplat models
+Each sequence uses the shipped detectors (``models/*.onnx``, trained on simulated scenes), the
+shipped segmenter with the keypoint model adapted to other rigs (``wide``:
+``perception.keypoints.wide_model``), or the pretrained real-world ones (MODNet and MediaPipe's models, fetched by ``signsplat models
 fetch`` into ``perception.pretrained.cache``): ``perception.detectors`` by the sheet row's
 source, or the row's own ``detectors`` column. The workflow asks this module for a
 sequence's choice, its perception section (the row's ``signer`` column applied) and the model
@@ -10,13 +11,14 @@ files its rules read; the stage commands ask it for the specs.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from signsplat.perception.contracts import KeypointSpec, SegmenterSpec
 
 # MODNet's input normalisation (v - 127.5) / 127.5: a fact of the model (manifest), not a setting
 MODNET_MEAN_STD = (127.5, 127.5, 127.5)
-DETECTORS = ("shipped", "pretrained")
+DETECTORS = ("shipped", "wide", "pretrained")
 
 
 def specs(cfg: dict, device: str = "auto") -> tuple[SegmenterSpec, KeypointSpec]:
@@ -54,14 +56,17 @@ def pretrained_specs(cfg: dict, device: str = "auto"):
 
 
 def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
-    """(segmenter spec, keypointer spec) for ``detectors`` 'shipped' or 'pretrained'."""
+    """(segmenter spec, keypointer spec) for ``detectors`` (one of :data:`DETECTORS`)."""
     if detectors == "pretrained":
         return pretrained_specs(cfg, device)
-    return specs(cfg, device)
+    seg, kp = specs(cfg, device)
+    if detectors == "wide":
+        kp = dataclasses.replace(kp, path=cfg["keypoints"]["wide_model"])
+    return seg, kp
 
 
 def detectors_for(row: dict, cfg: dict) -> str:
-    """'shipped' or 'pretrained' for one sequence-sheet row: its ``detectors`` column when
+    """One of :data:`DETECTORS` for one sequence-sheet row: its ``detectors`` column when
     set, else ``perception.detectors`` by the row's source (synthetic / video)."""
     return row.get("detectors") or cfg["detectors"][row["source"]]
 
@@ -87,7 +92,8 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
         _, entries = load_manifest()
         return {"segmenter": [str(cache / entries["modnet"].target)],
                 "keypoints": [str(cache / entries[m["name"]].target) for m in MODELS]}
-    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [cfg["keypoints"]["model"]]}
+    model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
+    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model]}
 
 
 def asset_files(cfg: dict) -> dict[str, str]:

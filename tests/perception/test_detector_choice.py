@@ -26,16 +26,18 @@ def test_defaults_by_source_and_the_sheet_override(tmp_path):
                                  f"s6|synthetic|{spec}||\n"
                                  f"s6p|synthetic|{spec}||pretrained\n"
                                  "clip|video||a.mp4|\n"
-                                 "clip_s|video||a.mp4|shipped\n"))
+                                 "clip_s|video||a.mp4|shipped\n"
+                                 f"ring|synthetic|{spec}||wide\n"))
     got = {name: detectors_for(row, CFG) for name, row in seqs.items()}
     assert got == {"s6": "shipped", "s6p": "pretrained", "clip": "pretrained",
-                   "clip_s": "shipped"}
+                   "clip_s": "shipped", "ring": "wide"}
     cfg = validate({"detectors": {"video": "shipped"}}, "stages/perception.schema.yaml")
     assert detectors_for(seqs["clip"], cfg) == "shipped"
 
 
 def test_unknown_detectors_value_names_the_line(tmp_path):
-    with pytest.raises(ConfigError, match=r"line 2.*'detectors'.*'shipped', 'pretrained'"):
+    with pytest.raises(ConfigError,
+                       match=r"line 2.*'detectors'.*'shipped', 'wide', 'pretrained'"):
         load_sequences(_sheet(tmp_path, "sequence|source|cameras|detectors\nx|video|a.mp4|rtmw\n"))
 
 
@@ -43,6 +45,8 @@ def test_files_each_choice_reads():
     shipped = detector_files(CFG, "shipped")
     assert shipped == {"segmenter": ["models/segmenter.onnx"],
                        "keypoints": ["models/keypoints.onnx"]}
+    assert detector_files(CFG, "wide") == {"segmenter": ["models/segmenter.onnx"],
+                                           "keypoints": ["models/keypoints_wide.onnx"]}
     pre = detector_files(CFG, "pretrained")
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
     assert pre["keypoints"] == [f"models/cache/{name}.onnx" for name in (
@@ -63,9 +67,11 @@ def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
 
     cfg = {**CFG, "pretrained": {**CFG["pretrained"], "cache": str(tmp_path)}}
     open(detector_files(cfg, "pretrained")["segmenter"][0], "wb").close()  # model_file checks
-    for detectors in ("shipped", "pretrained"):
+    for detectors in ("shipped", "wide", "pretrained"):
         seg, kp = detector_specs(cfg, detectors, "cpu")
         assert seg.device == "cpu" and kp.device == "cpu", detectors
+    assert detector_specs(cfg, "wide")[1].path == "models/keypoints_wide.onnx"
+    assert detector_specs(cfg, "wide")[0] == detector_specs(cfg, "shipped")[0]
     _, kp = detector_specs(cfg, "pretrained", "cuda:1")
     assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
     assert [f.name for f in dataclasses.fields(MediaPipeSpec)
