@@ -988,12 +988,28 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
 def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
                   cfg: dict) -> RigHypotheses:
     """The multi-view fit's camera initialisation: :func:`initial_rig`, and with
-    ``repair_sides`` once more without the view-frames whose left and right the placed
-    cameras show to be exchanged (:func:`side_swaps`), when they are more than 2 % of all.
-    Same arguments as :func:`initial_rig`."""
+    ``repair_sides``:
+
+    - views left unplaced are tried once more with their left and right exchanged in every
+      frame (a detector that sees the signer from behind labels the whole view the other way
+      round, and no camera matches such a view); the retry is kept when it places more views;
+    - then once more without the view-frames whose left and right the placed cameras show to
+      be exchanged (:func:`side_swaps`), when they are more than 2 % of all.
+
+    Same arguments as :func:`initial_rig`. (The fit finds the exchanged view-frames again from
+    the cameras returned and exchanges them back in what it fits.)"""
     hyp = initial_rig(kp_neutral, obs, K, width, height, cfg)
     if not cfg["repair_sides"]:
         return hyp
+    lost = [v for v, s in enumerate(hyp.status) if s == "unplaced"]
+    if lost:
+        whole = np.zeros(obs.shape[:2], bool)
+        whole[lost] = True
+        retry = initial_rig(kp_neutral, exchange_sides(obs, whole), K, width, height, cfg)
+        if len(placed_views(retry.status)) > len(placed_views(hyp.status)):
+            log.info("camera init: view(s) %s placed with their left and right exchanged",
+                     [v for v in lost if retry.status[v] != "unplaced"])
+            hyp, obs = retry, exchange_sides(obs, whole)
     swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs,
                        inlier_threshold_px(cfg["init"], height), views=placed_views(hyp.status))
     if swaps.sum() <= 0.02 * swaps.size:

@@ -342,3 +342,23 @@ def test_cameras_are_placed_again_without_a_back_view_s_exchanged_sides(kpm, mot
     off = rig_init.place_cameras(kp0, bad, rig.K, rig.width, rig.height,
                                  cfg | {"repair_sides": False})
     np.testing.assert_array_equal(off.R, first.R)
+
+
+def test_a_view_seen_from_behind_with_its_sides_exchanged_throughout_is_placed(kpm, motion):
+    """A camera behind the signer whose detector labels left and right the other way round in
+    every frame matches no camera, so the first placement leaves it unplaced; `place_cameras`
+    tries it again exchanged and places it with the others."""
+    rig = placed_rig([0.0, 70.0, 180.0, 290.0], [2.4] * 4, [1.4] * 4)
+    obs = observe(kpm, motion, rig, noise_px=1.0, seed=8)
+    whole = np.zeros(obs.shape[:2], bool)
+    whole[2] = True
+    bad = rig_init.exchange_sides(obs, whole)
+    bad[2][:, 23:91, 2] = 0.0  # and it sees no face
+    cfg = _cfg()["multiview"]
+    kp0 = neutral_keypoints(kpm)
+    first = rig_init.initial_rig(kp0, bad, rig.K, rig.width, rig.height, cfg)
+    assert first.status[2] == "unplaced"
+    hyp = rig_init.place_cameras(kp0, bad, rig.K, rig.width, rig.height, cfg)
+    assert "unplaced" not in hyp.status
+    err = camera_errors(Rig(rig.K, hyp.R, hyp.t, rig.width, rig.height), rig)
+    assert err["rotation_deg_max"] < 1.0
