@@ -267,8 +267,8 @@ def test_same_seed_same_arrays():
     """Two builds with one seed are identical (coarser grid than the default, for speed)."""
     from signsplat.body.proxy import build_proxy_arrays
 
-    a = build_proxy_arrays(seed=3, target_vertices=6000, spacing=0.003)
-    b = build_proxy_arrays(seed=3, target_vertices=6000, spacing=0.003)
+    a = build_proxy_arrays(seed=3, target_vertices=6000, spacing=0.004)
+    b = build_proxy_arrays(seed=3, target_vertices=6000, spacing=0.004)
     assert a.keys() == b.keys()
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)

@@ -61,7 +61,7 @@ def test_wide_training_scenes_cover_other_rigs_and_leave_the_studio_set_as_it_wa
 
     names = ["HELLO", "BOOK", "HOUSE", "NAME", "WHAT", "FRIEND"]
     studio = training_scene_specs(8, 0, names)
-    wide = training_scene_specs(40, 0, names, cameras="wide")
+    wide = training_scene_specs(24, 0, names, cameras="wide")
     digest = hashlib.sha256(json.dumps(studio, sort_keys=True).encode()).hexdigest()
     assert digest.startswith("a0fe1c8a8be19f82")
     for spec in wide:
