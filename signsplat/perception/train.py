@@ -436,6 +436,7 @@ def keypoint_net_from_onnx(cfg: TrainConfig, path: str | os.PathLike) -> Cascade
                for i in onnx.load(str(path)).graph.initializer}
     state = {k: v.clone() for k, v in net.state_dict().items()}
     modules = list(net.named_modules())
+    folded = set()  # the batch norms folded into the convolution before them
     for (name, mod), (after, bn) in zip(modules, modules[1:]):
         if isinstance(mod, torch.nn.Conv2d) and f"{name}.weight_bias" in weights \
                 and isinstance(bn, torch.nn.BatchNorm2d):
@@ -443,15 +444,14 @@ def keypoint_net_from_onnx(cfg: TrainConfig, path: str | os.PathLike) -> Cascade
             state[f"{after}.bias"] = torch.from_numpy(weights[f"{name}.weight_bias"].copy())
             state[f"{after}.running_mean"].zero_()
             state[f"{after}.running_var"].fill_(1.0 - bn.eps)
+            folded.add(after)
     for key, value in state.items():
         if key in weights:
             if tuple(weights[key].shape) != tuple(value.shape):
                 raise ValueError(f"{path}: weight {key} has shape {weights[key].shape}, the "
                                  f"configured network {tuple(value.shape)}")
             state[key] = torch.from_numpy(weights[key].copy())
-        elif not key.endswith("num_batches_tracked") and key.rsplit(".", 1)[0] not in {
-                a for (n, m), (a, b) in zip(modules, modules[1:])
-                if f"{n}.weight_bias" in weights}:
+        elif key.rsplit(".", 1)[0] not in folded and not key.endswith("num_batches_tracked"):
             raise ValueError(f"{path}: no weight {key}; is it a keypoint model of this "
                              "architecture (perception.train.kp_*)?")
     net.load_state_dict(state)
@@ -459,7 +459,7 @@ def keypoint_net_from_onnx(cfg: TrainConfig, path: str | os.PathLike) -> Cascade
 
 
 def adapt_keypoints(train: D.FrameSet, cfg: TrainConfig, out_path: str | os.PathLike,
-                    log=None, init: str | os.PathLike = "", export: bool = True) -> dict:
+                    log=None, *, init: str | os.PathLike, export: bool = True) -> dict:
     """Go on training an exported keypoint model (``init``, ONNX) on new scenes ``train``.
 
     ``kp_adapt_steps`` steps at ``kp_adapt_lr`` (warm-up + cosine), both stages learning, hand
