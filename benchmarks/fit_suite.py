@@ -2,7 +2,7 @@
 every suite scene with the workflow's default config, then one table and one figure.
 
 Usage: python benchmarks/fit_suite.py [--scenes g00 issue29 ...] [--results results/suite]
-       [--cores 2] [--keypoints detected|ground_truth] [--collect-only]
+       [--cores 2] [--keypoints detected|ground_truth] [--detectors shipped|wide] [--collect-only]
        [--out benchmarks/results/fit_suite.parquet]
 
 The scenes are config/scenes/suite/*.yaml (`signsplat suite-scenes` writes them from
@@ -37,11 +37,14 @@ from signsplat.report.fit_suite import (plot_suite, scene_row, suite_table,  # n
 SUITE = REPO / "config" / "scenes" / "suite"
 
 
-def run_workflow(scenes: list[str], results: Path, cores: int, keypoints: str) -> int:
+def run_workflow(scenes: list[str], results: Path, cores: int, keypoints: str,
+                 detectors: str = "shipped") -> int:
     targets = [str(results / s / "fit" / "fit_eval.parquet") for s in scenes]
     config = [f"sequences={SUITE / 'sequences.tsv'}", f"results={results}"]
     if keypoints != "detected":
         config.append(f"fit={json.dumps({'keypoints': keypoints})}")
+    if detectors != "shipped":
+        config.append(f"perception={json.dumps({'detectors': {'synthetic': detectors}})}")
     cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), "--keep-going",
            "--rerun-triggers", "mtime", "--config", *config, "--", *targets]
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -55,6 +58,10 @@ def main() -> None:
     p.add_argument("--results", default="results/suite")
     p.add_argument("--cores", type=int, default=2)
     p.add_argument("--keypoints", default="detected", choices=["detected", "ground_truth"])
+    p.add_argument("--detectors", default="shipped", choices=["shipped", "wide"],
+                   help="the synthetic scenes' detectors (wide: the keypoint model adapted to "
+                        "other rigs, models/README.md); give each choice its own --results and "
+                        "--out")
     p.add_argument("--collect-only", action="store_true", help="only read finished results")
     p.add_argument("--out", default="benchmarks/results/fit_suite.parquet")
     a = p.parse_args()
@@ -69,13 +76,14 @@ def main() -> None:
     results = (REPO / a.results).resolve()
     t0 = time.perf_counter()
     if not a.collect_only:
-        code = run_workflow(scenes, results, a.cores, a.keypoints)
+        code = run_workflow(scenes, results, a.cores, a.keypoints, a.detectors)
         print(f"snakemake exit code {code}", flush=True)
     wall = time.perf_counter() - t0
     rows = [scene_row(results, s, specs[s], a.keypoints) for s in scenes]
     df = suite_table(rows)
     out = REPO / a.out
-    meta = {"keypoints": a.keypoints, "wall_seconds": f"{wall:.0f}", "results": str(results)}
+    meta = {"keypoints": a.keypoints, "detectors": a.detectors, "wall_seconds": f"{wall:.0f}",
+            "results": str(results)}
     if a.collect_only and out.exists():  # the run's own wall clock and notes stay
         meta = {**read_table(out, "fit_suite").attrs, "keypoints": a.keypoints,
                 "results": str(results)}
