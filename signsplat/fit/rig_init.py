@@ -1005,11 +1005,12 @@ def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width,
     if lost:
         whole = np.zeros(obs.shape[:2], bool)
         whole[lost] = True
-        retry = initial_rig(kp_neutral, exchange_sides(obs, whole), K, width, height, cfg)
+        flipped = exchange_sides(obs, whole)
+        retry = initial_rig(kp_neutral, flipped, K, width, height, cfg)
         if len(placed_views(retry.status)) > len(placed_views(hyp.status)):
             log.info("camera init: view(s) %s placed with their left and right exchanged",
                      [v for v in lost if retry.status[v] != "unplaced"])
-            hyp, obs = retry, exchange_sides(obs, whole)
+            hyp, obs = retry, flipped
     swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs,
                        inlier_threshold_px(cfg["init"], height), views=placed_views(hyp.status))
     if swaps.sum() <= 0.02 * swaps.size:

@@ -4,9 +4,10 @@ Each sequence uses the shipped detectors (``models/*.onnx``, trained on simulate
 shipped segmenter with the keypoint model adapted to other rigs (``wide``:
 ``perception.keypoints.wide_model``), or the pretrained real-world ones (MODNet and
 MediaPipe's models, fetched by ``signsplat models fetch`` into ``perception.pretrained.cache``):
-``perception.detectors`` by the sheet row's source, or the row's own ``detectors`` column. The workflow asks this module for a
-sequence's choice, its perception section (the row's ``signer`` column applied) and the model
-files its rules read; the stage commands ask it for the specs.
+``perception.detectors`` by the sheet row's source, or the row's own ``detectors`` column.
+The workflow asks this module for a sequence's choice, its perception section (the row's
+``signer`` column applied) and the model files its rules read; the stage commands ask it for
+the specs.
 """
 
 from __future__ import annotations
