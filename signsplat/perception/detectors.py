@@ -57,12 +57,22 @@ def pretrained_specs(cfg: dict, device: str = "auto"):
 
 
 def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
-    """(segmenter spec, keypointer spec) for ``detectors`` (one of :data:`DETECTORS`)."""
+    """(segmenter spec, keypointer spec) for ``detectors`` (one of :data:`DETECTORS`); the
+    shipped and ``wide`` keypointers with ``keypoints.hands: mediapipe`` are a
+    :class:`~signsplat.perception.hands.HandsSpec`."""
     if detectors == "pretrained":
         return pretrained_specs(cfg, device)
     seg, kp = specs(cfg, device)
+    k = cfg["keypoints"]
     if detectors == "wide":
-        kp = dataclasses.replace(kp, path=cfg["keypoints"]["wide_model"])
+        kp = dataclasses.replace(kp, path=k["wide_model"])
+    if k["hands"] == "mediapipe":
+        from signsplat.perception.hands import HandsSpec
+        from signsplat.perception.pretrained.keypointer import MediaPipeSpec
+
+        landmarker = MediaPipeSpec.from_config(cfg["pretrained"], device=device, face=False)
+        kp = HandsSpec(base=kp, hands=landmarker,
+                       min_score=k["hand_min_score"], reach=k["hand_reach"])
     return seg, kp
 
 
@@ -84,17 +94,20 @@ def perception_for(row: dict, cfg: dict) -> dict:
 
 def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     """The model files each stage reads for ``detectors`` (workflow inputs): the configured
-    ONNX files, or the pretrained ones in ``perception.pretrained.cache``."""
-    if detectors == "pretrained":
-        from signsplat.perception.pretrained.fetch import load_manifest
-        from signsplat.perception.pretrained.graphs import MODELS
+    ONNX files, or the pretrained ones in ``perception.pretrained.cache`` (also MediaPipe's
+    keypoint models for the shipped and ``wide`` keypointers with ``keypoints.hands:
+    mediapipe``)."""
+    from signsplat.perception.pretrained.fetch import load_manifest
+    from signsplat.perception.pretrained.graphs import MODELS
 
-        cache = Path(cfg["pretrained"]["cache"])
-        _, entries = load_manifest()
-        return {"segmenter": [str(cache / entries["modnet"].target)],
-                "keypoints": [str(cache / entries[m["name"]].target) for m in MODELS]}
+    cache = Path(cfg["pretrained"]["cache"])
+    _, entries = load_manifest()
+    landmarker = [str(cache / entries[m["name"]].target) for m in MODELS]
+    if detectors == "pretrained":
+        return {"segmenter": [str(cache / entries["modnet"].target)], "keypoints": landmarker}
     model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
-    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model]}
+    hands = landmarker if cfg["keypoints"]["hands"] == "mediapipe" else []
+    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model, *hands]}
 
 
 def asset_files(cfg: dict) -> dict[str, str]:

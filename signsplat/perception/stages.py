@@ -202,8 +202,15 @@ class SimccKeypointer:
 def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
     """The keypointer for ``spec``: a :class:`KeypointSpec` (SimCC ONNX model) or a
     :class:`~signsplat.perception.pretrained.keypointer.MediaPipeSpec` (the pretrained
-    whole-body keypointer); ``min_area`` overrides the spec's (masks smaller = no person)."""
-    if isinstance(spec, KeypointSpec):
+    whole-body keypointer) or a :class:`~signsplat.perception.hands.HandsSpec` (a SimCC
+    model with MediaPipe's hands); ``min_area`` overrides the spec's (masks smaller = no
+    person)."""
+    from signsplat.perception.hands import HandsKeypointer, HandsSpec
+
+    if isinstance(spec, HandsSpec):
+        kp = HandsKeypointer(open_keypointer(spec.base, threads),
+                             open_keypointer(spec.hands, threads), spec)
+    elif isinstance(spec, KeypointSpec):
         kp = SimccKeypointer(spec, threads)
     else:
         from signsplat.perception.pretrained.keypointer import MediaPipeKeypointer
@@ -270,6 +277,10 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     t0 = time.perf_counter()
     xys, scs = _finish_views(kp, keys, xys, scs)
     t["model"] += time.perf_counter() - t0
+    if getattr(kp, "taken", None) is not None:
+        print("keypoints: MediaPipe's hands taken in " + ", ".join(
+            f"{n} of {kp.frames} frames ({side})" for side, n in kp.taken.items()),
+            file=sys.stderr)
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
     write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})

@@ -1,0 +1,103 @@
+"""The shipped keypoint model's body and face with MediaPipe's fingers (``perception.keypoints.
+hands: mediapipe``).
+
+The shipped keypoint model places the signing hand's points 3-10 px off on ``studio6``; the
+hand landmarker of the pretrained keypointer (:mod:`signsplat.perception.pretrained`), run on
+the same frames, places them about 2 px off (``models/README.md``, "Known limits"). Per frame and side,
+:func:`take_hands` puts the hand landmarker's finger points in place of the model's when
+
+- that hand was found (its points' mean score is at least ``min_score``), and
+- its wrist lies within ``reach`` times the person's size (the longer side of the mask's box)
+  of the model's wrist of the same side, whose score is at least ``min_score``: the two then
+  agree on which hand is which, and on where the arm ends.
+
+The hand's root point (the wrist) stays the model's: it is the end of the arm the model
+detects with the body. So do the scores, which the fit uses as weights
+(``fit.confidence_power``): the landmarker scores its hands 2-7 times higher than the model
+scores its own, and with those weights the hands pull the fitted cameras and the other hand
+off (``docs/avatar.md``, "MediaPipe's fingers on the shipped body").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from signsplat.body.joints import KP_LEFT_HAND, KP_RIGHT_HAND, NUM_KEYPOINTS
+
+# COCO-WholeBody: per side the body's wrist and the hand's 21 points (root first)
+SIDES = {"left": (9, KP_LEFT_HAND), "right": (10, KP_RIGHT_HAND)}
+
+
+def take_hands(xy: np.ndarray, sc: np.ndarray, hand_xy: np.ndarray, hand_sc: np.ndarray,
+               boxes: list, min_score: float, reach: float
+               ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """The keypoints ``xy`` (N, 133, 2) with the finger points of ``hand_xy`` (the hand
+    landmarker's, same shape) where the module's rules take them; ``sc`` (N, 133) are the
+    model's scores, ``hand_sc`` the landmarker's (they decide which hands are found, and the
+    scores stay the model's); ``boxes`` are the frames' person boxes (x0, y0, x1, y1) or None
+    (no person: nothing is taken). Returns new arrays and per side the number of frames
+    taken."""
+    xy, sc = np.array(xy, np.float32), np.array(sc, np.float32)
+    hand_xy, hand_sc = np.asarray(hand_xy, np.float32), np.asarray(hand_sc, np.float32)
+    n = len(xy)
+    size = np.array([np.nan if b is None else max(b[2] - b[0], b[3] - b[1]) for b in boxes],
+                    np.float64).reshape(n)
+    taken = {}
+    for side, (wrist, hand) in SIDES.items():
+        idx = list(hand)
+        found = np.nan_to_num(hand_sc[:, idx].mean(axis=1), nan=0.0) >= min_score
+        gap = np.linalg.norm(hand_xy[:, idx[0]] - xy[:, wrist], axis=-1)
+        near = np.nan_to_num(gap, nan=np.inf) <= reach * np.nan_to_num(size, nan=0.0)
+        ok = found & near & (np.nan_to_num(sc[:, wrist], nan=0.0) >= min_score)
+        ok &= np.isfinite(hand_xy[:, idx[1:]]).all(axis=(1, 2))
+        fingers = idx[1:]
+        xy[np.ix_(ok, fingers)] = hand_xy[np.ix_(ok, fingers)]
+        taken[side] = int(ok.sum())
+    return xy, sc, taken
+
+
+@dataclass(frozen=True)
+class HandsSpec:
+    """A keypoint model (``base``, a :class:`~signsplat.perception.contracts.KeypointSpec`)
+    whose hands come from MediaPipe's hand landmarker (``hands``, a
+    :class:`~signsplat.perception.pretrained.keypointer.MediaPipeSpec`)."""
+
+    base: object
+    hands: object
+    min_score: float
+    reach: float
+
+    @property
+    def device(self) -> str:
+        return self.base.device
+
+
+class HandsKeypointer:
+    """Two keypointers on the same frames, their results merged by :func:`take_hands`."""
+
+    source = "onnx+mediapipe"
+    num_keypoints = NUM_KEYPOINTS
+
+    def __init__(self, base, hands, spec: HandsSpec):
+        self.base, self.hands, self.spec = base, hands, spec
+        self.batch_size, self.min_area = base.batch_size, base.min_area
+        self.path = f"{base.path} + {hands.path}"
+        self.taken = {side: 0 for side in SIDES}
+        self.frames = 0
+
+    def detect(self, images: list, boxes: list, views: list[int], persons=None):
+        """The base's keypoints with the hand landmarker's hands (:func:`take_hands`)."""
+        xy, sc = self.base.detect(images, boxes, views, persons)
+        hand_xy, hand_sc = self.hands.detect(images, boxes, views, persons)
+        xy, sc, taken = take_hands(xy, sc, hand_xy, hand_sc, boxes, self.spec.min_score,
+                                   self.spec.reach)
+        for side, k in taken.items():
+            self.taken[side] += k
+        self.frames += len(images)
+        return xy, sc
+
+    def finish(self, frames, xy, sc):
+        """One view's keypoints after its last frame: the base's own finishing."""
+        return self.base.finish(frames, xy, sc)
