@@ -36,7 +36,7 @@ def job_counts(stdout: str) -> dict[str, int]:
 
 
 def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
-    over = tmp_path / "over.yaml"  # an empty model cache: the fetch is part of the plan
+    over = tmp_path / "over.yaml"  # an empty model cache: the default run needs none of it
     over.write_text(yaml.safe_dump({"results": str(tmp_path),
                                     "perception": {"pretrained": {"cache": str(tmp_path / "c")}}}))
     res = snakemake("-n", "-p", "--configfile", "config/config.yaml", str(over))
@@ -44,11 +44,11 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     counts = job_counts(res.stdout)
     # the sheet's two synthetic sequences (studio6: 6 cameras, single: 1): one chain each,
     # COLMAP only for the multi-view one, one stitching job for all sentences, one report;
-    # MediaPipe's models fetched once for the keypoint stages' hands
+    # nothing fetched
     per_sequence = ("simulate", "segment", "detect_keypoints", "perception_eval", "fit_smplx",
                     "train_avatar", "evaluate_avatar")
     assert counts == {"body_model": 1, "gloss_library": 1, "colmap_compare": 1,
-                      "stitch_video": 1, "report": 1, "all": 1, "fetch_models": 1, "total": 21,
+                      "stitch_video": 1, "report": 1, "all": 1, "total": 20,
                       **{rule: 2 for rule in per_sequence}}
     detect = [line for line in res.stdout.splitlines() if " -m signsplat detect-keypoints " in line]
     assert len(detect) == 2 and all("--detectors shipped" in line for line in detect)

@@ -97,9 +97,6 @@ def tiny_config(work: Path, name: str = "config.yaml", body: Path | None = None,
     cfg = {
         "results": str(work / "results"), "sequences": str(work / "sequences.tsv"),
         "scenes": ["tiny"],
-        # the keypoint model's own hands: MediaPipe's models would have to be fetched first
-        # (tests/perception/test_hands.py runs them where they are)
-        "perception": {"keypoints": {"hands": "model"}},
         "fit": yaml.safe_load((ROOT / "config" / "fit_few_steps.yaml").read_text())["fit"],
         "avatar": {"upsample": {"max_rounds": 0},
                    "train": {"iterations": 4, "test_interval": 2, "test_offset": 1,

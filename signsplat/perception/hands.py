@@ -1,10 +1,9 @@
 """The shipped keypoint model's body and face with MediaPipe's fingers (``perception.keypoints.
 hands: mediapipe``).
 
-The shipped keypoint model places the signing hand's points 3-10 px off on ``studio6``; the
-hand landmarker of the pretrained keypointer (:mod:`signsplat.perception.pretrained`), run on
-the same frames, places them about 2 px off (``models/README.md``, "Known limits"). Per frame and side,
-:func:`take_hands` puts the hand landmarker's finger points in place of the model's when
+The hand landmarker of the pretrained keypointer (:mod:`signsplat.perception.pretrained`) runs
+on the same frames as the keypoint model. Per frame and side, :func:`take_hands` puts its
+finger points in place of the model's when
 
 - that hand was found (its points' mean score is at least ``min_score``), and
 - its wrist lies within ``reach`` times the person's size (the longer side of the mask's box)
@@ -13,9 +12,9 @@ the same frames, places them about 2 px off (``models/README.md``, "Known limits
 
 The hand's root point (the wrist) stays the model's: it is the end of the arm the model
 detects with the body. So do the scores, which the fit uses as weights
-(``fit.confidence_power``): the landmarker scores its hands 2-7 times higher than the model
-scores its own, and with those weights the hands pull the fitted cameras and the other hand
-off (``docs/avatar.md``, "MediaPipe's fingers on the shipped body").
+(``fit.confidence_power``): the landmarker's scores would weigh the hands more than the fit's
+balance of body and hands was set for. Why and what it gains: ``docs/avatar.md``, "MediaPipe's
+fingers on the shipped body".
 """
 
 from __future__ import annotations

@@ -45,15 +45,14 @@ def test_files_each_choice_reads():
     landmarker = [f"models/cache/{name}.onnx" for name in (
         "pose_detection", "pose_landmark_full", "hand_recrop", "hand_landmark_full",
         "palm_detection_full", "face_detection_short_range", "face_landmark")]
-    own = {**CFG, "keypoints": {**CFG["keypoints"], "hands": "model"}}
-    assert detector_files(own, "shipped") == {"segmenter": ["models/segmenter.onnx"],
+    assert detector_files(CFG, "shipped") == {"segmenter": ["models/segmenter.onnx"],
                                               "keypoints": ["models/keypoints.onnx"]}
-    assert detector_files(own, "wide") == {"segmenter": ["models/segmenter.onnx"],
+    assert detector_files(CFG, "wide") == {"segmenter": ["models/segmenter.onnx"],
                                            "keypoints": ["models/keypoints_wide.onnx"]}
-    # by default the shipped and wide keypointers take MediaPipe's hands: its models too
-    assert detector_files(CFG, "shipped")["keypoints"] == ["models/keypoints.onnx", *landmarker]
-    assert detector_files(CFG, "wide")["keypoints"] == ["models/keypoints_wide.onnx",
-                                                        *landmarker]
+    # with MediaPipe's hands the shipped and wide keypointers read its models too
+    mp = {**CFG, "keypoints": {**CFG["keypoints"], "hands": "mediapipe"}}
+    assert detector_files(mp, "shipped")["keypoints"] == ["models/keypoints.onnx", *landmarker]
+    assert detector_files(mp, "wide")["keypoints"] == ["models/keypoints_wide.onnx", *landmarker]
     pre = detector_files(CFG, "pretrained")
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
     assert pre["keypoints"] == landmarker
@@ -75,13 +74,13 @@ def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
     for detectors in ("shipped", "wide", "pretrained"):
         seg, kp = detector_specs(cfg, detectors, "cpu")
         assert seg.device == "cpu" and kp.device == "cpu", detectors
-    assert detector_specs(cfg, "wide")[1].base.path == "models/keypoints_wide.onnx"
+    assert detector_specs(cfg, "wide")[1].path == "models/keypoints_wide.onnx"
     assert detector_specs(cfg, "wide")[0] == detector_specs(cfg, "shipped")[0]
-    _, kp = detector_specs(cfg, "shipped", "cuda:1")
+    mp = {**cfg, "keypoints": {**cfg["keypoints"], "hands": "mediapipe"}}
+    _, kp = detector_specs(mp, "wide", "cuda:1")
+    assert kp.base.path == "models/keypoints_wide.onnx" and kp.device == "cuda:1"
     assert kp.hands.device == "cuda:1" and kp.hands.face is False
     assert kp.reach == CFG["keypoints"]["hand_reach"]
-    own = {**cfg, "keypoints": {**cfg["keypoints"], "hands": "model"}}
-    assert detector_specs(own, "wide")[1].path == "models/keypoints_wide.onnx"
     _, kp = detector_specs(cfg, "pretrained", "cuda:1")
     assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
     assert [f.name for f in dataclasses.fields(MediaPipeSpec)

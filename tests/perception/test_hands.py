@@ -88,13 +88,14 @@ def test_degenerate_inputs_stay_finite_and_take_nothing():
 
 
 CFG = validate({}, "stages/perception.schema.yaml")
+MP = validate({"keypoints": {"hands": "mediapipe"}}, "stages/perception.schema.yaml")
 CACHE = REPO_ROOT / CFG["pretrained"]["cache"]
 
 
 def _fetched() -> bool:
     from signsplat.perception.detectors import detector_files
 
-    return all((REPO_ROOT / p).is_file() for p in detector_files(CFG, "shipped")["keypoints"])
+    return all((REPO_ROOT / p).is_file() for p in detector_files(MP, "shipped")["keypoints"])
 
 
 @pytest.mark.skipif(not _fetched(), reason=f"pretrained models not fetched into {CACHE} "
@@ -111,8 +112,8 @@ def test_landmarker_hands_beat_the_models_on_synthetic_ground_truth(name):
     from signsplat.perception.stages import open_keypointer
 
     data = REPO_ROOT / "tests" / "perception" / "data"
-    cfg = {**CFG, "pretrained": {**CFG["pretrained"], "cache": str(CACHE)},
-           "keypoints": {**CFG["keypoints"], "model": str(REPO_ROOT / "models/keypoints.onnx")}}
+    cfg = {**MP, "pretrained": {**MP["pretrained"], "cache": str(CACHE)},
+           "keypoints": {**MP["keypoints"], "model": str(REPO_ROOT / "models/keypoints.onnx")}}
     _, spec = detector_specs(cfg, "shipped", "cpu")
     assert spec.hands.face is False  # the landmarker's face is not run
     image = read_rgb(data / f"{name}.png")
