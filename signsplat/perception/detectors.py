@@ -97,17 +97,24 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     ONNX files, or the pretrained ones in ``perception.pretrained.cache`` (also MediaPipe's
     keypoint models for the shipped and ``wide`` keypointers with ``keypoints.hands:
     mediapipe``)."""
+    if detectors == "pretrained":
+        modnet, landmarker = _pretrained_files(cfg)
+        return {"segmenter": [modnet], "keypoints": landmarker}
+    model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
+    hands = _pretrained_files(cfg)[1] if cfg["keypoints"]["hands"] == "mediapipe" else []
+    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model, *hands]}
+
+
+def _pretrained_files(cfg: dict) -> tuple[str, list[str]]:
+    """MODNet's file and MediaPipe's keypoint models' files in ``pretrained.cache`` (read from
+    the manifest, which the shipped detectors without MediaPipe's hands never need)."""
     from signsplat.perception.pretrained.fetch import load_manifest
     from signsplat.perception.pretrained.graphs import MODELS
 
     cache = Path(cfg["pretrained"]["cache"])
     _, entries = load_manifest()
-    landmarker = [str(cache / entries[m["name"]].target) for m in MODELS]
-    if detectors == "pretrained":
-        return {"segmenter": [str(cache / entries["modnet"].target)], "keypoints": landmarker}
-    model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
-    hands = landmarker if cfg["keypoints"]["hands"] == "mediapipe" else []
-    return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model, *hands]}
+    return (str(cache / entries["modnet"].target),
+            [str(cache / entries[m["name"]].target) for m in MODELS])
 
 
 def asset_files(cfg: dict) -> dict[str, str]:

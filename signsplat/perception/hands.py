@@ -45,13 +45,12 @@ def take_hands(xy: np.ndarray, sc: np.ndarray, hand_xy: np.ndarray, hand_sc: np.
                     np.float64).reshape(n)
     taken = {}
     for side, (wrist, hand) in SIDES.items():
-        idx = list(hand)
-        found = np.nan_to_num(hand_sc[:, idx].mean(axis=1), nan=0.0) >= min_score
-        gap = np.linalg.norm(hand_xy[:, idx[0]] - xy[:, wrist], axis=-1)
+        root, fingers = hand[0], list(hand[1:])
+        found = np.nan_to_num(hand_sc[:, list(hand)].mean(axis=1), nan=0.0) >= min_score
+        gap = np.linalg.norm(hand_xy[:, root] - xy[:, wrist], axis=-1)
         near = np.nan_to_num(gap, nan=np.inf) <= reach * np.nan_to_num(size, nan=0.0)
         ok = found & near & (np.nan_to_num(sc[:, wrist], nan=0.0) >= min_score)
-        ok &= np.isfinite(hand_xy[:, idx[1:]]).all(axis=(1, 2))
-        fingers = idx[1:]
+        ok &= np.isfinite(hand_xy[:, fingers]).all(axis=(1, 2))
         xy[np.ix_(ok, fingers)] = hand_xy[np.ix_(ok, fingers)]
         taken[side] = int(ok.sum())
     return xy, sc, taken

@@ -4,6 +4,7 @@ no person, an occluded hand, a hand outside the image."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -145,7 +146,7 @@ def test_no_person_gives_empty_mask_and_zero_scores(shipped):
 def wide(shipped):
     """The `wide` detectors' keypoint model (the shipped one adapted to other rigs)."""
     kp = shipped[2]
-    kp = type(kp)(**{**kp.__dict__, "path": str(ROOT / "models" / "keypoints_wide.onnx")})
+    kp = dataclasses.replace(kp, path=str(ROOT / "models" / "keypoints_wide.onnx"))
     return kp, load_keypointer(kp, 2)
 
 
