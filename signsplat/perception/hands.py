@@ -96,6 +96,11 @@ class HandsKeypointer:
         self.frames += len(images)
         return xy, sc
 
+    def summary(self) -> str:
+        """How many frames took the landmarker's hands, for the stage's log."""
+        return "MediaPipe's hands taken in " + ", ".join(
+            f"{n} of {self.frames} frames ({side})" for side, n in self.taken.items())
+
     def finish(self, frames, xy, sc):
         """One view's keypoints after its last frame: the base's own finishing."""
         return self.base.finish(frames, xy, sc)

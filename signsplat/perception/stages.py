@@ -277,10 +277,8 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     t0 = time.perf_counter()
     xys, scs = _finish_views(kp, keys, xys, scs)
     t["model"] += time.perf_counter() - t0
-    if getattr(kp, "taken", None) is not None:
-        print("keypoints: MediaPipe's hands taken in " + ", ".join(
-            f"{n} of {kp.frames} frames ({side})" for side, n in kp.taken.items()),
-            file=sys.stderr)
+    if hasattr(kp, "summary"):
+        print(f"keypoints: {kp.summary()}", file=sys.stderr)
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
     write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})
