@@ -69,6 +69,22 @@ def scene_target(cameras: Mapping[str, Any]) -> np.ndarray:
     return np.asarray(cameras["target"], np.float64)
 
 
+def even_azimuths(count: int, arc_degrees: float) -> tuple[np.ndarray, float]:
+    """``count`` camera azimuths (degrees) evenly over an arc centred on the signer's front,
+    or over the whole ring from the front when ``arc_degrees`` >= 360; and the gap between
+    neighbours (the arc itself for one camera)."""
+    if arc_degrees >= 360:
+        return np.arange(count) * 360.0 / count, 360.0 / count
+    az = np.linspace(-arc_degrees / 2, arc_degrees / 2, count) if count > 1 else np.zeros(1)
+    return az, arc_degrees / max(count - 1, 1)
+
+
+def framing_fov(framing_m: float, distance_m: float) -> float:
+    """Vertical field of view (degrees) whose image height covers ``framing_m`` metres at
+    ``distance_m``."""
+    return float(np.degrees(2 * np.arctan(framing_m / (2 * distance_m))))
+
+
 def camera_rig(cameras: Mapping[str, Any]) -> list[Camera]:
     """Cameras of a scene's ``cameras`` section (defaults filled in by the schema).
 

@@ -31,7 +31,7 @@ import yaml
 
 from signsplat.config import validate
 from signsplat.io.atomic import write_bytes_atomic
-from signsplat.synth.scene import check_scene
+from signsplat.synth.scene import check_scene, even_azimuths, framing_fov
 
 #: the design's axes, in the order their permutations are drawn
 AXES = ("rig", "distance", "framing", "height", "image", "clip", "betas", "effects",
@@ -50,14 +50,8 @@ def _azimuths(count: int, arc: float, spacing: str, uneven: float,
               rng: np.random.Generator) -> list[float]:
     """Camera azimuths (degrees): evenly over ``arc`` (a full ring when arc >= 360), or with
     each inner camera moved by up to ``uneven`` of the even gap (ends stay)."""
-    if arc >= 360:
-        az = np.arange(count) * 360.0 / count
-        gap = 360.0 / count
-        inner = np.arange(1, count)
-    else:
-        az = np.linspace(-arc / 2, arc / 2, count) if count > 1 else np.zeros(1)
-        gap = arc / max(count - 1, 1)
-        inner = np.arange(1, count - 1)
+    az, gap = even_azimuths(count, arc)
+    inner = np.arange(1, count) if arc >= 360 else np.arange(1, count - 1)
     az = az.astype(float)
     if spacing == "uneven" and len(inner):
         az[inner] += rng.uniform(-uneven, uneven, len(inner)) * gap
@@ -73,7 +67,7 @@ def scene_from_row(row: dict[str, Any], grid: dict[str, Any], seed: int) -> dict
     cam_h, look_h = (float(x) for x in row["height"])
     width, height = (int(x) for x in row["image"])
     framing = float(row["framing"])
-    fov = float(np.degrees(2 * np.arctan(framing / (2 * dist))))
+    fov = framing_fov(framing, dist)
     un = grid.get("uneven", {})
     views = []
     for i, az in enumerate(_azimuths(count, arc, spacing, float(un.get("azimuth", 0.3)), rng)):

@@ -15,6 +15,7 @@ import numpy as np
 
 from signsplat.config import validate
 from signsplat.motion.clips import load_gloss_library
+from signsplat.synth.scene import even_azimuths, framing_fov
 
 
 CAMERA_SPACES = ("studio", "wide")
@@ -41,13 +42,7 @@ def _wide_cameras(rng: np.random.Generator) -> dict:
     heights 1.05-1.85 m looking at 1.2-1.4 m; the image height covering 0.9-1.8 m of the
     signer; images of 144-320 px on either side, square or not."""
     count = int(rng.integers(2, 5))
-    if rng.random() < 0.3:
-        base = np.arange(count) * 360.0 / count
-        gap = 360.0 / count
-    else:
-        arc = float(rng.uniform(30, 240))
-        base = np.linspace(-arc / 2, arc / 2, count)
-        gap = arc / (count - 1)
+    base, gap = even_azimuths(count, 360.0 if rng.random() < 0.3 else float(rng.uniform(30, 240)))
     azimuths = base + rng.uniform(-40, 40) + rng.uniform(-0.3, 0.3, count) * gap
     distance = float(rng.uniform(1.5, 4.0))
     framing = float(rng.uniform(0.9, 1.8))
@@ -59,7 +54,7 @@ def _wide_cameras(rng: np.random.Generator) -> dict:
                        round(float(rng.uniform(1.2, 1.4)), 3), 0.0],
             "width": int(sides[0]),
             "height_px": int(sides[1]),
-            "fov_degrees": round(float(np.degrees(2 * np.arctan(framing / 2 / distance))), 2),
+            "fov_degrees": round(framing_fov(framing, distance), 2),
             "views": [{"azimuth_degrees": round(float((a + 180) % 360 - 180), 2)}
                       for a in azimuths]}
 

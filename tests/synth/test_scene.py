@@ -181,3 +181,15 @@ def test_gloss_motion_is_resampled_to_the_scene_frame_rate(gloss_library_path):
     n25, n50 = len(m25["body_pose"]), len(m50["body_pose"])
     assert n50 == 2 * (n25 - 1) + 1  # same duration, twice the frames
     np.testing.assert_allclose(m50["body_pose"][::2], m25["body_pose"], atol=1e-5)
+
+
+def test_even_azimuths_cover_the_arc_or_the_ring():
+    az, gap = sc.even_azimuths(4, 120.0)
+    np.testing.assert_allclose(az, [-60, -20, 20, 60])
+    assert gap == 40.0
+    az, gap = sc.even_azimuths(6, 360.0)  # a ring starts at the front, no camera twice
+    np.testing.assert_allclose(az, [0, 60, 120, 180, 240, 300])
+    assert gap == 60.0
+    az, gap = sc.even_azimuths(1, 90.0)
+    np.testing.assert_allclose(az, [0.0])
+    assert np.isfinite(gap)
