@@ -69,9 +69,11 @@ METRICS = register_table(Table(
         "train_seconds": "float64 wall-clock training time of the avatar",
     },
     extra_columns=True,
-    # extra: protocol (str), refine (bool), n_images (int64), background (str 'r,g,b'),
-    # split_rule (str), eval_seconds (float64), smplx_source (str), heldout_pose (str: fit |
-    # interpolated, the held-out frames' pose before refinement, signsplat/avatar/poses.py)
+    # extra: protocol (str), refine (bool), n_images (int64), std_error (float64, the standard
+    # error of that mean: the images' standard deviation / sqrt(n_images); NaN for one image),
+    # background (str 'r,g,b'), split_rule (str), eval_seconds (float64), smplx_source (str),
+    # heldout_pose (str: fit | interpolated, the held-out frames' pose before refinement,
+    # signsplat/avatar/poses.py)
 ))
 
 PROTOCOLS = ("bg_replaced", "mask_only", "raw_gt")
@@ -298,7 +300,7 @@ def summarize(per_image: pd.DataFrame, scene: str, variant: str, train_seconds: 
               cfg: AvatarConfig, eval_seconds: float, smplx_source: str) -> pd.DataFrame:
     """Average per-image rows into the ``avatar_metrics`` table."""
     keys = ["split", "protocol", "refine", "part", "metric"]
-    agg = per_image.groupby(keys, sort=True)["value"].agg(["mean", "count"]).reset_index()
+    agg = per_image.groupby(keys, sort=True)["value"].agg(["mean", "count", "std"]).reset_index()
     t = cfg.train
     rule = (f"test frames: (frame - {t.test_offset}) % {t.test_interval} == 0; "
             f"test views: {list(t.test_views)}")
@@ -307,6 +309,7 @@ def summarize(per_image: pd.DataFrame, scene: str, variant: str, train_seconds: 
         "metric": agg["metric"], "value": agg["mean"].astype(float),
         "train_seconds": float(train_seconds), "protocol": agg["protocol"],
         "refine": agg["refine"].astype(bool), "n_images": agg["count"].astype("int64"),
+        "std_error": (agg["std"] / np.sqrt(agg["count"])).astype(float),
         "background": ",".join(f"{c:g}" for c in t.background), "split_rule": rule,
         "eval_seconds": float(eval_seconds), "smplx_source": smplx_source,
     })

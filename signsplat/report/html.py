@@ -240,15 +240,20 @@ def colmap_section(res: Results) -> Section:
 
 def _avatar_summary(m: pd.DataFrame) -> pd.DataFrame:
     """PSNR/SSIM/LPIPS per split and part, background replaced (the paper's protocol); with
-    test-time refinement in columns of their own ("psnr refined", ...) where it was run."""
+    test-time refinement in columns of their own ("psnr refined", ...) where it was run. The
+    PSNR's standard error over the images follows it ("psnr ±") where the table has one."""
     d = m
     if "protocol" in d:
         d = d[d["protocol"] == "bg_replaced"]
     refine = d["refine"].astype(bool) if "refine" in d else pd.Series(False, index=d.index)
 
     def table(rows: pd.DataFrame) -> pd.DataFrame:
-        return rows.pivot_table(index=["split", "part"], columns="metric", values="value",
-                                aggfunc="mean")
+        out = rows.pivot_table(index=["split", "part"], columns="metric", values="value",
+                               aggfunc="mean")
+        if "std_error" in rows and "psnr" in out:
+            err = rows[rows["metric"] == "psnr"].groupby(["split", "part"])["std_error"].mean()
+            out.insert(list(out.columns).index("psnr") + 1, "psnr ±", err)
+        return out
 
     out = table(d[~refine])
     if refine.any():

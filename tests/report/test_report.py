@@ -119,6 +119,9 @@ def test_avatar_table_states_its_protocol_and_shows_refinement_beside(results_di
     full = next(r for r in re.findall(r"<tr>(.*?)</tr>", demo, re.DOTALL) if "<td>full</td>" in r)
     row = dict(zip(head, re.findall(r"<td>([^<]*)</td>", full)))
     assert float(row["psnr"]) == 24 and float(row["psnr refined"]) == 25, row
+    # each PSNR beside its standard error over the images (the fixture's 0.25 and 0.5 dB)
+    assert head.index("psnr ±") == head.index("psnr") + 1
+    assert float(row["psnr ±"]) == 0.25 and float(row["psnr ± refined"]) == 0.5, row
 
 
 def test_temporary_files_of_a_killed_writer_are_not_read(tmp_path):
