@@ -198,6 +198,10 @@ class SimccKeypointer:
         """One view's keypoints after its last frame: unchanged (frames are independent)."""
         return xy, sc, {}
 
+    def summary(self) -> str:
+        """Nothing to add to the stage's log (the model's points are taken as they are)."""
+        return ""
+
 
 def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
     """The keypointer for ``spec``: a :class:`KeypointSpec` (SimCC ONNX model) or a
@@ -277,8 +281,9 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     t0 = time.perf_counter()
     xys, scs = _finish_views(kp, keys, xys, scs)
     t["model"] += time.perf_counter() - t0
-    if hasattr(kp, "summary"):
-        print(f"keypoints: {kp.summary()}", file=sys.stderr)
+    note = kp.summary()
+    if note:
+        print(f"keypoints: {note}", file=sys.stderr)
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
     write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})

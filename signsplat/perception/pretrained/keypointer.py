@@ -418,3 +418,7 @@ class MediaPipeKeypointer:
         s = self.model.spec
         return drop_still_hands(frames, xy, sc, ratio=s.still_hand_ratio,
                                 min_score=s.min_hand_presence, trust=s.hand_track_trust)
+
+    def summary(self) -> str:
+        """Nothing beyond ``finish``'s per-view counts for the stage's log."""
+        return ""
