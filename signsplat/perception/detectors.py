@@ -71,8 +71,8 @@ def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
         from signsplat.perception.pretrained.keypointer import MediaPipeSpec
 
         landmarker = MediaPipeSpec.from_config(cfg["pretrained"], device=device, face=False)
-        kp = HandsSpec(base=kp, hands=landmarker,
-                       min_score=k["hand_min_score"], reach=k["hand_reach"])
+        kp = HandsSpec(base=kp, hands=landmarker, min_score=k["hand_min_score"],
+                       reach=k["hand_reach"], sides=tuple(k["hand_sides"]))
     return seg, kp
 
 

@@ -2,8 +2,8 @@
 hands: mediapipe``).
 
 The hand landmarker of the pretrained keypointer (:mod:`signsplat.perception.pretrained`) runs
-on the same frames as the keypoint model. Per frame and side, :func:`take_hands` puts its
-finger points in place of the model's when
+on the same frames as the keypoint model. Per frame and side (of the configured
+``hand_sides``), :func:`take_hands` puts its finger points in place of the model's when
 
 - that hand was found (its points' mean score is at least ``min_score``), and
 - its wrist lies within ``reach`` times the person's size (the longer side of the mask's box)
@@ -30,21 +30,26 @@ SIDES = {"left": (9, KP_LEFT_HAND), "right": (10, KP_RIGHT_HAND)}
 
 
 def take_hands(xy: np.ndarray, sc: np.ndarray, hand_xy: np.ndarray, hand_sc: np.ndarray,
-               boxes: list, min_score: float, reach: float
+               boxes: list, min_score: float, reach: float, sides: tuple[str, ...]
                ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """The keypoints ``xy`` (N, 133, 2) with the finger points of ``hand_xy`` (the hand
     landmarker's, same shape) where the module's rules take them; ``sc`` (N, 133) are the
     model's scores, ``hand_sc`` the landmarker's (they decide which hands are found, and the
     scores stay the model's); ``boxes`` are the frames' person boxes (x0, y0, x1, y1) or None
-    (no person: nothing is taken). Returns new arrays and per side the number of frames
+    (no person: nothing is taken); ``sides`` the sides whose fingers may be taken (the others
+    stay the model's). Returns new arrays and per side of ``sides`` the number of frames
     taken."""
+    unknown = sorted(set(sides) - set(SIDES))
+    if unknown:
+        raise ValueError(f"unknown hand side(s) {unknown}; known: {sorted(SIDES)}")
     xy, sc = np.array(xy, np.float32), np.array(sc, np.float32)
     hand_xy, hand_sc = np.asarray(hand_xy, np.float32), np.asarray(hand_sc, np.float32)
     n = len(xy)
     size = np.array([np.nan if b is None else max(b[2] - b[0], b[3] - b[1]) for b in boxes],
                     np.float64).reshape(n)
     taken = {}
-    for side, (wrist, hand) in SIDES.items():
+    for side in sides:
+        wrist, hand = SIDES[side]
         root, fingers = hand[0], list(hand[1:])
         found = np.nan_to_num(hand_sc[:, list(hand)].mean(axis=1), nan=0.0) >= min_score
         gap = np.linalg.norm(hand_xy[:, root] - xy[:, wrist], axis=-1)
@@ -66,6 +71,7 @@ class HandsSpec:
     hands: object
     min_score: float
     reach: float
+    sides: tuple[str, ...]
 
     @property
     def device(self) -> str:
@@ -82,7 +88,7 @@ class HandsKeypointer:
         self.base, self.hands, self.spec = base, hands, spec
         self.batch_size, self.min_area = base.batch_size, base.min_area
         self.path = f"{base.path} + {hands.path}"
-        self.taken = {side: 0 for side in SIDES}
+        self.taken = {side: 0 for side in spec.sides}
         self.frames = 0
 
     def detect(self, images: list, boxes: list, views: list[int], persons=None):
@@ -90,7 +96,7 @@ class HandsKeypointer:
         xy, sc = self.base.detect(images, boxes, views, persons)
         hand_xy, hand_sc = self.hands.detect(images, boxes, views, persons)
         xy, sc, taken = take_hands(xy, sc, hand_xy, hand_sc, boxes, self.spec.min_score,
-                                   self.spec.reach)
+                                   self.spec.reach, self.spec.sides)
         for side, k in taken.items():
             self.taken[side] += k
         self.frames += len(images)

@@ -81,6 +81,7 @@ def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
     assert kp.base.path == "models/keypoints_wide.onnx" and kp.device == "cuda:1"
     assert kp.hands.device == "cuda:1" and kp.hands.face is False
     assert kp.reach == CFG["keypoints"]["hand_reach"]
+    assert kp.sides == tuple(CFG["keypoints"]["hand_sides"])
     _, kp = detector_specs(cfg, "pretrained", "cuda:1")
     assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
     assert [f.name for f in dataclasses.fields(MediaPipeSpec)

@@ -13,6 +13,11 @@ from signsplat.perception.hands import take_hands
 
 LEFT, RIGHT = list(KP_LEFT_HAND), list(KP_RIGHT_HAND)
 BOX = (0.0, 0.0, 100.0, 200.0)  # person size 200 px
+BOTH = ("left", "right")
+
+
+def _take(xy, sc, hxy, hsc, boxes, sides=BOTH):
+    return take_hands(xy, sc, hxy, hsc, boxes, min_score=0.3, reach=0.1, sides=sides)
 
 
 def _frames(n=3, seed=0):
@@ -32,7 +37,7 @@ def _frames(n=3, seed=0):
 
 def test_fingers_are_taken_and_the_wrist_and_scores_stay_the_models():
     xy, sc, hxy, hsc = _frames()
-    out, osc, taken = take_hands(xy, sc, hxy, hsc, [BOX] * 3, min_score=0.3, reach=0.1)
+    out, osc, taken = _take(xy, sc, hxy, hsc, [BOX] * 3)
     assert taken == {"left": 3, "right": 3}
     for hand in (LEFT, RIGHT):
         np.testing.assert_array_equal(out[:, hand[1:]], hxy[:, hand[1:]])
@@ -40,6 +45,18 @@ def test_fingers_are_taken_and_the_wrist_and_scores_stay_the_models():
     body = [k for k in range(133) if k not in LEFT[1:] + RIGHT[1:]]
     np.testing.assert_array_equal(out[:, body], xy[:, body])
     np.testing.assert_array_equal(osc, sc)  # the fit's weights stay the model's
+
+
+def test_only_the_configured_sides_are_taken():
+    """hand_sides [right]: the right fingers are the landmarker's, the left stay the model's;
+    an unknown side is an error naming the known ones."""
+    xy, sc, hxy, hsc = _frames()
+    out, _, taken = _take(xy, sc, hxy, hsc, [BOX] * 3, sides=("right",))
+    assert taken == {"right": 3}
+    np.testing.assert_array_equal(out[:, RIGHT[1:]], hxy[:, RIGHT[1:]])
+    np.testing.assert_array_equal(out[:, LEFT], xy[:, LEFT])
+    with pytest.raises(ValueError, match="known: \\['left', 'right'\\]"):
+        _take(xy, sc, hxy, hsc, [BOX] * 3, sides=("middle",))
 
 
 def test_a_hand_on_the_other_sides_wrist_is_not_taken():
@@ -50,7 +67,7 @@ def test_a_hand_on_the_other_sides_wrist_is_not_taken():
     xy[:, 10] = (80.0, 100.0)
     hxy[:, LEFT[0]] = xy[:, 10]
     hxy[:, RIGHT[0]] = xy[:, 9]
-    out, _, taken = take_hands(xy, sc, hxy, hsc, [BOX] * 3, min_score=0.3, reach=0.1)
+    out, _, taken = _take(xy, sc, hxy, hsc, [BOX] * 3)
     assert taken == {"left": 0, "right": 0}
     np.testing.assert_array_equal(out, xy)
 
@@ -59,7 +76,7 @@ def test_reach_scales_with_the_person():
     xy, sc, hxy, hsc = _frames(n=2)
     hxy[:, RIGHT[0]] = xy[:, 10] + (15.0, 0.0)  # 15 px: inside 0.1 x 200, outside 0.1 x 100
     boxes = [BOX, (0.0, 0.0, 100.0, 100.0)]
-    _, _, taken = take_hands(xy, sc, hxy, hsc, boxes, min_score=0.3, reach=0.1)
+    _, _, taken = _take(xy, sc, hxy, hsc, boxes)
     assert taken["right"] == 1
 
 
@@ -67,7 +84,7 @@ def test_unsure_hands_and_unsure_wrists_are_not_taken():
     xy, sc, hxy, hsc = _frames()
     hsc[0, LEFT] = 0.2  # the landmarker's hand not found
     sc[1, 10] = 0.1  # the model's right wrist unsure
-    _, _, taken = take_hands(xy, sc, hxy, hsc, [BOX] * 3, min_score=0.3, reach=0.1)
+    _, _, taken = _take(xy, sc, hxy, hsc, [BOX] * 3)
     assert taken == {"left": 2, "right": 2}
 
 
@@ -76,14 +93,14 @@ def test_degenerate_inputs_stay_finite_and_take_nothing():
     xy, sc, hxy, hsc = _frames()
     hxy[:] = np.nan
     hsc[:] = np.nan
-    out, osc, taken = take_hands(xy, sc, hxy, hsc, [None, BOX, BOX], min_score=0.3, reach=0.1)
+    out, osc, taken = _take(xy, sc, hxy, hsc, [None, BOX, BOX])
     assert taken == {"left": 0, "right": 0}
     assert np.isfinite(out).all() and np.isfinite(osc).all()
     xy[1, :] = np.nan
-    _, _, taken = take_hands(xy, sc, *_frames()[2:], [BOX] * 3, min_score=0.3, reach=0.1)
+    _, _, taken = _take(xy, sc, *_frames()[2:], [BOX] * 3)
     assert taken == {"left": 2, "right": 2}  # the frame whose model wrist is NaN is left
     empty = np.zeros((0, 133, 2), np.float32), np.zeros((0, 133), np.float32)
-    out, osc, taken = take_hands(*empty, *empty, [], min_score=0.3, reach=0.1)
+    out, osc, taken = _take(*empty, *empty, [])
     assert out.shape == (0, 133, 2) and taken == {"left": 0, "right": 0}
 
 
