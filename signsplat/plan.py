@@ -49,6 +49,9 @@ class Plan:
     #: the config's own fit); empty when no multi-view sequence is there to sweep
     fit_sweep: dict[str, FitPoint] = field(default_factory=dict)
     fit_sweep_scene: str | None = None
+    #: why the config's fit cannot be swept (the sweep's axes would be ambiguous); raised only
+    #: when the fit sweep is asked for, so that every other target still runs
+    fit_sweep_error: str | None = None
     ablation_scene: str | None = None
     sweep_scene: str | None = None
     quality_scene: str | None = None
@@ -203,9 +206,14 @@ def _plan_fit_sweep(p: Plan, config: dict) -> None:
                               f"fit's); allowed: {allowed}")
     if scene is None or config["fit"]["mode"] == "singleview":
         return
-    p.fit_sweep_scene = scene
     axes = {axis: cfg[axis] for axis in FIT_SWEEP_AXES}
-    p.fit_sweep = {pt.name: pt for pt in sweep_points(config["fit"], axes, p.source)}
+    try:
+        points = sweep_points(config["fit"], axes, p.source)
+    except ConfigError as e:
+        p.fit_sweep_error = str(e)
+        return
+    p.fit_sweep_scene = scene
+    p.fit_sweep = {pt.name: pt for pt in points}
 
 
 def _plan_ablations(p: Plan, cfg: dict, user_avatar: dict) -> None:

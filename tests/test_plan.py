@@ -135,6 +135,13 @@ def test_the_fit_sweep_runs_on_a_multi_view_sequence_with_its_own_mode_config(tm
     assert plan(cfg, user, root=ROOT).fit_sweep == {}
     cfg, user = _config(tmp_path, fit={"mode": "singleview"})
     assert plan(cfg, user, root=ROOT).fit_sweep == {}
+    # two stages an axis could edit: the plan keeps the reason for the fit sweep's target
+    stages = cfg["fit"]["multiview"]["stages"]
+    again = {**next(s for s in stages if s.get("silhouette")), "name": "silhouette_again"}
+    cfg, user = _config(tmp_path, fit={"multiview": {"stages": stages + [again]}})
+    p = plan(cfg, user, root=ROOT)
+    assert p.fit_sweep == {} and p.fit_sweep_scene is None
+    assert "['silhouette', 'silhouette_again']" in p.fit_sweep_error
 
 
 def test_job_threads_share_the_local_cores_between_sequences():

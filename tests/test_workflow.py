@@ -262,6 +262,24 @@ def test_dry_run_of_the_fit_sweep_plans_one_fit_per_changed_setting(tmp_path):
     assert f"{tmp_path}/studio6/fit_sweep.png" in res.stdout
 
 
+def test_a_fit_the_sweep_cannot_edit_stops_only_the_fit_sweep(tmp_path):
+    """Two stages with mask terms: the default run still plans its fits; `snakemake
+    fit_sweep` fails naming both stages."""
+    from signsplat.config import validate
+
+    stages = validate({}, "stages/fit.schema.yaml")["multiview"]["stages"]
+    again = {**next(s for s in stages if s.get("silhouette")), "name": "silhouette_again"}
+    overlay = tmp_path / "two_silhouettes.yaml"
+    overlay.write_text(yaml.safe_dump({"fit": {"multiview": {"stages": stages + [again]}}}))
+    args = ("--configfile", str(overlay), "--config", f"results={tmp_path}")
+    res = snakemake("-n", *args)
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert job_counts(res.stdout)["fit_smplx"] == 2
+    res = snakemake("-n", "fit_sweep", *args)
+    assert res.returncode != 0
+    assert "['silhouette', 'silhouette_again']" in res.stderr + res.stdout
+
+
 def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path):
     cfg = tiny_study_config(tmp_path)
     res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))

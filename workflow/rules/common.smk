@@ -5,7 +5,7 @@ import os
 import sys
 from pathlib import Path
 
-from signsplat.config import validate
+from signsplat.config import ConfigError, validate
 from signsplat.plan import STAGE_THREADS, plan
 
 # The config as the user gave it (files and --config), before the schema fills its defaults

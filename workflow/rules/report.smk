@@ -126,10 +126,17 @@ rule fit_sweep_table:
         " --tsv {output.tsv:q} > {log} 2>&1"
 
 
+def fit_sweep_tables(wildcards):
+    """The fit sweep's outputs; a fit the sweep cannot edit fails here, not in other runs."""
+    if PLAN.fit_sweep_error:
+        raise ConfigError(PLAN.fit_sweep_error)
+    return expand(rules.fit_sweep_table.output, scene=PLAN.fit_sweep_scene or [])
+
+
 rule fit_sweep:
     localrule: True
     input:
-        expand(rules.fit_sweep_table.output, scene=PLAN.fit_sweep_scene or []),
+        fit_sweep_tables,
 
 
 rule ablations:
