@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "perception-quality": ("signsplat.perception.cli",
                            "detection rates and jitter on footage (no ground truth)"),
     "fit": ("signsplat.fit.cli", "SMPL-X fitting, multi-view or single view"),
+    "keypoint-offsets": ("signsplat.fit.cli",
+                         "a detector's keypoints against the body model's, from simulated scenes"),
     "colmap-compare": ("signsplat.colmap.cli", "COLMAP reconstruction vs the SMPL-X camera solve"),
     "train-avatar": ("signsplat.avatar.cli", "train the Gaussian-splat avatar"),
     "evaluate-avatar": ("signsplat.avatar.cli", "evaluate the avatar on held-out frames and views"),

@@ -280,6 +280,23 @@ def test_a_fit_the_sweep_cannot_edit_stops_only_the_fit_sweep(tmp_path):
     assert "['silhouette', 'silhouette_again']" in res.stderr + res.stdout
 
 
+def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path):
+    """config fit.keypoint_offsets names a table per detector set: each fit of keypoints
+    found by that set takes it as an input and passes it to `signsplat fit`."""
+    table = tmp_path / "shipped_offsets.parquet"
+    table.write_bytes(b"")
+    res = snakemake("-n", "-p", "--config", f"results={tmp_path}",
+                    f'fit={{"keypoint_offsets": {{"shipped": "{table}"}}}}')
+    assert res.returncode == 0, res.stderr + res.stdout
+    fits = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_smplx:")]
+    assert len(fits) == 2
+    for job in fits:  # an input (a new table re-runs the fit) and the command's argument
+        assert str(table) in job.split("output:")[0]
+        assert f"--keypoint-offsets' '{table}'" in job
+    res = snakemake("-n", "-p", "--config", f"results={tmp_path}")
+    assert "--keypoint-offsets" not in res.stdout
+
+
 def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path):
     cfg = tiny_study_config(tmp_path)
     res = snakemake("-n", "ablations", "sweep", "--configfile", str(cfg))

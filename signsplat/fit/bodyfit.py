@@ -171,11 +171,20 @@ class KeypointModel(torch.nn.Module):
     than posing all vertices. ``forward(full=True)`` always runs the full model.
     """
 
-    def __init__(self, model, regressor, fast: bool = True):
+    def __init__(self, model, regressor, fast: bool = True, offsets: np.ndarray | None = None):
         super().__init__()
         self.model = model
         self.regressor = regressor
         self.fast = False
+        # a detector's own keypoints (signsplat.fit.keypoint_offsets); None = the regressor's
+        ref = model.v_template
+        self.register_buffer("offsets", None if offsets is None else torch.as_tensor(
+            offsets, dtype=ref.dtype, device=ref.device))
+        if offsets is not None:
+            from signsplat.fit.keypoint_offsets import ANCHOR_JOINTS, ANCHORED
+
+            self._anchored = ANCHORED.tolist()
+            self._anchor_joints = ANCHOR_JOINTS.tolist()
         if fast:
             lin = linearise_regressor(model, regressor)
             if lin is not None:
@@ -226,11 +235,19 @@ class KeypointModel(torch.nn.Module):
         transl = blk("transl", 3)
         v_shaped = self._v_template + torch.einsum("bl,vkl->bvk", coeffs, self._shapedirs)
         rest_joints = self._J_template + torch.einsum("bl,jkl->bjk", coeffs, self._J_dirs)
-        verts, joints, _ = pose_shaped(v_shaped, rest_joints, pose, self._posedirs,
+        verts, joints, A = pose_shaped(v_shaped, rest_joints, pose, self._posedirs,
                                        self._weights, m.parents, m.levels(), transl)
         kp = torch.einsum("ks,bsc->bkc", self._Wv, verts) + torch.einsum("kj,bjc->bkc",
                                                                          self._Wj, joints)
-        return joints, kp
+        return joints, self._offset(kp, A)
+
+    def _offset(self, kp: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+        """The keypoints moved by the detector's offsets, turned with their segments (LBS
+        transforms ``A (B,55,4,4)``); as they are without offsets."""
+        if self.offsets is None:
+            return kp
+        moved = torch.einsum("bkij,kj->bki", A[:, self._anchor_joints, :3, :3], self.offsets)
+        return kp.index_add(1, torch.as_tensor(self._anchored, device=kp.device), moved)
 
     def forward(self, full: bool = False, **inputs) -> tuple[torch.Tensor, torch.Tensor, object]:
         """-> (joints (B,55,3), keypoints (B,133,3), BodyOutput or None on the fast path)."""
@@ -238,13 +255,15 @@ class KeypointModel(torch.nn.Module):
             joints, kp = self._sparse_forward(inputs)
             return joints, kp, None
         out = self.model(**inputs)
-        return out.joints, self.regressor(out), out
+        return out.joints, self._offset(self.regressor(out), out.transforms), out
 
 
 def load_keypoint_model(body_path: str | os.PathLike, num_betas: int, num_expression: int,
-                        device: torch.device | str = "cpu") -> KeypointModel:
+                        device: torch.device | str = "cpu",
+                        offsets: np.ndarray | None = None) -> KeypointModel:
     """Body model + whole-body regressor of the file ``body_path`` as a :class:`KeypointModel`
-    on ``device``."""
+    on ``device``; ``offsets (K,3)``: a detector's keypoints
+    (:func:`signsplat.fit.keypoint_offsets.offsets_array`), none = the regressor's."""
     from signsplat.body.keypoints import WholeBodyRegressor
     from signsplat.body.model import BodyModel
 
@@ -253,7 +272,7 @@ def load_keypoint_model(body_path: str | os.PathLike, num_betas: int, num_expres
     regressor = WholeBodyRegressor(model)
     if isinstance(regressor, torch.nn.Module):
         regressor = regressor.to(device)
-    return KeypointModel(model, regressor)
+    return KeypointModel(model, regressor, offsets=offsets)
 
 
 #: SMPL-X parameter blocks :func:`keypoints_of` passes to the body model when present

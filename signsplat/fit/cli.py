@@ -33,6 +33,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--max-frames", type=int, help="fit only the first N frames")
     p.add_argument("--fps", type=float, default=25.0, help="when no frames table is given")
+    p.add_argument("--keypoint-offsets",
+                   help="keypoint_offsets table of the detector that found the keypoints "
+                   "(signsplat.fit.keypoint_offsets); none = the body model's own keypoints")
     return p
 
 
@@ -51,5 +54,49 @@ def fit(argv: list[str]) -> int:
               frames=args.frames, masks=args.masks, gt_smplx=args.gt_smplx,
               gt_cameras=args.gt_cameras, scene=args.scene, num_betas=args.num_betas,
               num_expression=args.num_expression, device=str(select_device(args.device)),
-              fps=args.fps, view=args.view, max_frames=args.max_frames)
+              fps=args.fps, view=args.view, max_frames=args.max_frames,
+              keypoint_offsets=args.keypoint_offsets)
+    return 0
+
+
+def keypoint_offsets(argv: list[str]) -> int:
+    """Entry point of ``signsplat keypoint-offsets``: estimate a detector's keypoint offsets
+    (:mod:`signsplat.fit.keypoint_offsets`) on finished simulated scenes and write the table."""
+    import pandas as pd
+
+    from signsplat.errors import InputError
+    from signsplat.fit import keypoint_offsets as ko
+    from signsplat.fit.bodyfit import load_keypoint_model
+    from signsplat.io.tables import write_table
+
+    p = argparse.ArgumentParser(prog="signsplat keypoint-offsets",
+                                description=keypoint_offsets.__doc__.split(":")[1].strip())
+    p.add_argument("--scenes", nargs="+", required=True,
+                   help="scene folders with sim/ (smplx_gt, cameras) and the detector's "
+                   "perception/keypoints.parquet")
+    p.add_argument("--body", required=True, help="body model .npz the scenes were made with")
+    p.add_argument("--detector", required=True,
+                   help="what found the keypoints (written into the table's metadata)")
+    p.add_argument("--out", required=True, help="keypoint_offsets table (Parquet)")
+    p.add_argument("--min-score", type=float, default=0.3)
+    p.add_argument("--ridge", type=float, default=1000.0,
+                   help="px^2 per m^2 pulling each offset to zero")
+    p.add_argument("--min-observations", type=int, default=200)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    kpm = load_keypoint_model(args.body, 10, 10)
+    samples = []
+    for d in args.scenes:
+        try:
+            samples.append(ko.scene_sample(d, kpm))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    offsets, before, after = ko.estimate_offsets(samples, args.min_score, args.ridge,
+                                                 args.min_observations)
+    df = ko.offsets_table(offsets, before, after, args.min_observations)
+    write_table(df, args.out, "keypoint_offsets",
+                metadata={"detector": args.detector,
+                          "scenes": " ".join(str(s) for s in args.scenes)})
+    with pd.option_context("display.width", 160):
+        print(df.round(4).to_string(index=False))
     return 0

@@ -34,7 +34,8 @@ from signsplat.fit.overlay import write_overlays
 from signsplat.fit.sequence import FitResult
 from signsplat.fit.solver import stages_using
 from signsplat.io.atomic import write_bytes_atomic
-from signsplat.io.tables import write_table
+from signsplat.fit.keypoint_offsets import offsets_array, read_offsets
+from signsplat.io.tables import TableError, write_table
 
 log = logging.getLogger("signsplat.fit")
 
@@ -47,7 +48,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
             body: str | os.PathLike, *, frames: str | os.PathLike | None = None,
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
             device: str = "cpu", fps: float = 25.0, view: int | None = None,
-            max_frames: int | None = None, masks: str | os.PathLike | None = None
+            max_frames: int | None = None, masks: str | os.PathLike | None = None,
+            keypoint_offsets: str | os.PathLike | None = None
             ) -> tuple[FitResult, np.ndarray, str, KeypointModel]:
     """Load, clean and fit. Returns (result, cleaned obs (V,T,133,3), mode, keypoint model).
 
@@ -55,6 +57,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     camera (single-view fit of that view). ``masks``: a masks (or frames) table whose person
     masks feed the multi-view stages with silhouette weights (read only when such a stage
     exists). ``fps``: frame rate when no frames table gives the timestamps.
+    ``keypoint_offsets``: the detector's ``keypoint_offsets`` table; the fitted (and
+    evaluated) keypoints are then the detector's, not the body model's.
     """
     from signsplat.fit.multiview import fit_multiview
     from signsplat.fit.singleview import fit_singleview
@@ -108,7 +112,15 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     else:
         K = np.stack([intrinsics_from_fov(w, h, sec["approx_fov_degrees"])
                       for w, h in zip(rig_cal.width, rig_cal.height)])
-    kpm = load_keypoint_model(body, num_betas, num_expression, device)
+    offsets = None
+    if keypoint_offsets:
+        try:
+            offsets = offsets_array(read_offsets(keypoint_offsets))
+        except (TableError, ValueError) as exc:
+            raise InputError(str(exc)) from None
+        log.info("keypoints: the detector's, moved by %s (%d keypoints)", keypoint_offsets,
+                 int((np.abs(offsets).sum(1) > 0).sum()))
+    kpm = load_keypoint_model(body, num_betas, num_expression, device, offsets=offsets)
     mask_arr = images = extrinsics = None
     if mode == "multiview":
         sil = stages_using(sec["stages"], "uses_silhouette")
@@ -165,8 +177,8 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
               gt_smplx: str | os.PathLike | None = None,
               gt_cameras: str | os.PathLike | None = None, scene: str | None = None,
               num_betas: int = 10, num_expression: int = 10, device: str = "cpu",
-              fps: float = 25.0, view: int | None = None, max_frames: int | None = None
-              ) -> dict:
+              fps: float = 25.0, view: int | None = None, max_frames: int | None = None,
+              keypoint_offsets: str | os.PathLike | None = None) -> dict:
     """:func:`run_fit`, then write every output into ``out_dir`` (see the module docstring).
 
     ``cfg['keypoints']`` names the keypoints' source in the tables. Returns the summary that
@@ -177,12 +189,14 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
     result, obs, mode, kpm = run_fit(cfg, keypoints, calibration, body, frames=frames,
                                      scene=scene, num_betas=num_betas,
                                      num_expression=num_expression, device=device, fps=fps,
-                                     view=view, max_frames=max_frames, masks=masks)
+                                     view=view, max_frames=max_frames, masks=masks,
+                                     keypoint_offsets=keypoint_offsets)
     result.seconds["cpu"] = time.process_time() - c0
     out_dir = Path(out_dir)
     name = str(result.log["scene"])
     meta = {"hand_mean": HAND_MEAN, "body_model": str(body), "mode": mode,
             "keypoints": cfg["keypoints"],
+            "keypoint_offsets": str(keypoint_offsets) if keypoint_offsets else "none",
             "world_frame": world_frame(mode, result.log.get("reference_view"))}
     data.write_outputs(out_dir, data.smplx_table(result.params, name, result.frames,
                                                  result.provenance, result.num_keypoints),
