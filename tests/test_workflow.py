@@ -147,6 +147,26 @@ def test_simulate_rule_ran_on_the_tiny_scene(tiny_run):
         res.stdout[-3000:]
 
 
+@pytest.mark.slow
+def test_keypoint_offsets_command_on_the_tiny_scene(tiny_run, tmp_path, capsys):
+    """`signsplat keypoint-offsets` on a finished scene writes the table the fit reads; a
+    folder without a finished scene is a clear error."""
+    from signsplat.cli import main
+    from signsplat.fit.keypoint_offsets import offsets_array, read_offsets
+
+    results = tiny_run / "results"
+    out = tmp_path / "offsets.parquet"
+    args = ["--body", str(results / "_assets" / "body_model.npz"), "--detector", "shipped",
+            "--out", str(out), "--min-observations", "1"]
+    assert main(["keypoint-offsets", "--scenes", str(results / "tiny"), *args]) == 0
+    table = read_offsets(out)
+    assert len(table) > 5 and np.isfinite(offsets_array(table)).all()
+    assert (table["rms_after_px"] <= table["rms_before_px"] + 1e-9).all()
+    assert table.attrs["detector"] == "shipped"
+    assert main(["keypoint-offsets", "--scenes", str(tmp_path / "nowhere"), *args]) == 2
+    assert "nowhere" in capsys.readouterr().err
+
+
 # A tiny ablation study and sweep (merged over config/config.yaml's sections: the default
 # bases' other keys stay), fitted like the demo avatar, so the full model and the sweep centre
 # are `demo`.
