@@ -447,3 +447,6 @@ def test_dry_run_of_the_footage_config_uses_the_pretrained_detectors(tmp_path):
     assert "simulate" not in counts
     seg = [line for line in res.stdout.splitlines() if " -m signsplat segment " in line][0]
     assert "--detectors pretrained" in seg and '"box": [213.0, 14.0, 150.0, 242.0]' in seg
+    # the fit fits MediaPipe's own keypoints (fit.keypoint_offsets.pretrained)
+    fit = [line for line in res.stdout.splitlines() if " -m signsplat fit " in line][0]
+    assert "--keypoint-offsets' 'models/pretrained_keypoint_offsets.parquet'" in fit

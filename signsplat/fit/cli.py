@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from signsplat.config import config_option
 
@@ -96,7 +97,7 @@ def keypoint_offsets(argv: list[str]) -> int:
     df = ko.offsets_table(offsets, before, after, args.min_observations)
     write_table(df, args.out, "keypoint_offsets",
                 metadata={"detector": args.detector,
-                          "scenes": " ".join(str(s) for s in args.scenes)})
+                          "scenes": " ".join(Path(s).name for s in args.scenes)})
     with pd.option_context("display.width", 160):
         print(df.round(4).to_string(index=False))
     return 0

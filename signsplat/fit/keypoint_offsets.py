@@ -59,7 +59,8 @@ KEYPOINT_OFFSETS = register_table(Table(
         "dy": "float64 offset along rest-pose y (up), metres",
         "dz": "float64 offset along rest-pose z (the body's front), metres",
         "observations": "int64 detections the estimate used (after trimming)",
-        "rms_before_px": "float64 RMS distance of those detections to the projected keypoint without the offset, px",
+        "rms_before_px": "float64 RMS distance of those detections to the projected keypoint "
+                         "without the offset, px",
         "rms_after_px": "float64 the same with it, px",
     },
     metadata={"detector": "the detectors the offsets belong to (pretrained: their versions)",
@@ -202,17 +203,15 @@ def estimate_offsets(samples: list[SceneSample], min_score: float, ridge: float,
     without and with them at the last trim (their ``n`` and ``sse`` give the RMS)."""
     if not samples:
         raise ValueError("no scene to estimate the keypoint offsets from")
+
+    def pooled(offsets: np.ndarray, trim: float) -> SceneSystem:
+        systems = [s.system(offsets, min_score, trim) for s in samples]
+        return sum(systems[1:], systems[0])
+
     offsets = np.zeros((len(ANCHORED), 3))
     for trim in trims_px:
-        pooled = sum((s.system(offsets, min_score, trim) for s in samples[1:]),
-                     samples[0].system(offsets, min_score, trim))
-        offsets = solve_offsets(pooled, offsets, ridge, min_observations)
-    zero = np.zeros_like(offsets)
-    before = sum((s.system(zero, min_score, trims_px[-1]) for s in samples[1:]),
-                 samples[0].system(zero, min_score, trims_px[-1]))
-    after = sum((s.system(offsets, min_score, trims_px[-1]) for s in samples[1:]),
-                samples[0].system(offsets, min_score, trims_px[-1]))
-    return offsets, before, after
+        offsets = solve_offsets(pooled(offsets, trim), offsets, ridge, min_observations)
+    return offsets, pooled(np.zeros_like(offsets), trims_px[-1]), pooled(offsets, trims_px[-1])
 
 
 def offsets_table(offsets: np.ndarray, before: SceneSystem, after: SceneSystem,
