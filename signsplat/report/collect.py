@@ -66,10 +66,14 @@ class Results:
 
 
 def read_parquet(path: Path) -> pd.DataFrame | None:
-    """A Parquet file as a DataFrame, or None when it is missing (unreadable files raise)."""
+    """A Parquet file as a DataFrame, or None when it is missing (unreadable files raise);
+    the metadata of a table written by ``signsplat.io.tables.write_table`` in ``df.attrs``."""
     if not path.is_file():
         return None
-    return pq.read_table(path).to_pandas()
+    arrow = pq.read_table(path)
+    df = arrow.to_pandas()
+    df.attrs = json.loads((arrow.schema.metadata or {}).get(b"signsplat.meta", b"{}"))
+    return df
 
 
 def _pngs(folder: Path, limit: int | None = None) -> list[Path]:

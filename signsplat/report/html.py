@@ -214,7 +214,10 @@ def fit_section(res: Results, assets: Assets) -> Section:
         fe = t.fit_eval
         secs = float(fe["seconds_total"].iloc[0]) if len(fe) else None
         cols = [c for c in ("mode", "keypoints", "metric", "part", "value", "unit") if c in fe]
-        sec.add_table(f"{name}: fit accuracy (fit took {_fmt_seconds(secs)})", fe[cols])
+        offsets = fe.attrs.get("keypoint_offsets", "none")
+        whose = "" if offsets == "none" else \
+            f"; fitted to the detector's own keypoints, {Path(offsets).name}"
+        sec.add_table(f"{name}: fit accuracy (fit took {_fmt_seconds(secs)}{whose})", fe[cols])
         bench = bench_seconds(res.benchmarks, "fit_smplx", name)
         for img in t.fit_overlays:
             sec.figures.append(Figure(assets.copy(img), f"{name}: {img.stem}",

@@ -312,3 +312,19 @@ def test_fronts_before_and_after_are_each_code_s_own_and_shown_in_the_sweep_sect
     assert (tmp_path / "report" / fig.src).stat().st_size > 5000
     assert [c for c, _ in shown.frames][0] == "the front before and after (benchmark)"
     assert sweep_section(res, assets, "demo", tmp_path / "none.parquet").figures == plain.figures
+
+
+def test_fit_table_says_when_the_fit_took_the_detector_s_own_keypoints(tmp_path):
+    """A fit_eval written with the keypoint_offsets it used (signsplat.fit.run's metadata):
+    the report's fit table names the table; without it, the caption says nothing of it."""
+    from signsplat.io.tables import write_table
+    from signsplat.report.html import Assets, fit_section
+
+    root = build_results(tmp_path / "r")
+    path = root / "tiny" / "fit" / "fit_eval.parquet"
+    plain = fit_section(collect(root), Assets(tmp_path / "a"))
+    assert "own keypoints" not in plain.tables[0][0]
+    write_table(read_table(path, "fit_eval"), path, "fit_eval",
+                metadata={"keypoint_offsets": "models/pretrained_keypoint_offsets.parquet"})
+    moved = fit_section(collect(root), Assets(tmp_path / "b"))
+    assert "own keypoints, pretrained_keypoint_offsets.parquet" in moved.tables[0][0]
