@@ -9,7 +9,7 @@ one 3D offset per keypoint, fixed in the frame of a body segment so that it turn
 segment (:data:`ANCHORS`).
 
 Functional core: :func:`normal_equations` (one scene's Gauss-Newton system) and
-:func:`solve_offsets` (the pooled, ridge-regularised solution). :func:`scene_system` reads a
+:func:`solve_offsets` (the pooled, ridge-regularised solution). :func:`scene_sample` reads a
 finished scene; :func:`read_offsets` the table (:data:`KEYPOINT_OFFSETS`) the fit loads.
 """
 
