@@ -70,8 +70,12 @@ def keypoint_offsets(argv: list[str]) -> int:
     from signsplat.fit.bodyfit import load_keypoint_model
     from signsplat.io.tables import write_table
 
-    p = argparse.ArgumentParser(prog="signsplat keypoint-offsets",
-                                description=keypoint_offsets.__doc__.split(":")[1].strip())
+    p = argparse.ArgumentParser(
+        prog="signsplat keypoint-offsets",
+        description="Estimate where a detector puts each body and hand keypoint against the "
+        "body model's own (constant 3D offsets on the body's segments), from finished "
+        "simulated scenes with the detector's keypoints; write the keypoint_offsets table "
+        "that config fit.keypoint_offsets names.")
     p.add_argument("--scenes", nargs="+", required=True,
                    help="scene folders with sim/ (smplx_gt, cameras) and the detector's "
                    "perception/keypoints.parquet")
