@@ -180,11 +180,12 @@ class KeypointModel(torch.nn.Module):
         ref = model.v_template
         self.register_buffer("offsets", None if offsets is None else torch.as_tensor(
             offsets, dtype=ref.dtype, device=ref.device))
-        if offsets is not None:
+        if offsets is not None:  # index tensors made once, not per forward pass
             from signsplat.fit.keypoint_offsets import ANCHOR_JOINTS, ANCHORED
 
-            self._anchored = ANCHORED.tolist()
-            self._anchor_joints = ANCHOR_JOINTS.tolist()
+            self.register_buffer("_anchored", torch.as_tensor(ANCHORED, device=ref.device))
+            self.register_buffer("_anchor_joints",
+                                 torch.as_tensor(ANCHOR_JOINTS, device=ref.device))
         if fast:
             lin = linearise_regressor(model, regressor)
             if lin is not None:
@@ -247,7 +248,7 @@ class KeypointModel(torch.nn.Module):
         if self.offsets is None:
             return kp
         moved = torch.einsum("bkij,kj->bki", A[:, self._anchor_joints, :3, :3], self.offsets)
-        return kp.index_add(1, torch.as_tensor(self._anchored, device=kp.device), moved)
+        return kp.index_add(1, self._anchored, moved)
 
     def forward(self, full: bool = False, **inputs) -> tuple[torch.Tensor, torch.Tensor, object]:
         """-> (joints (B,55,3), keypoints (B,133,3), BodyOutput or None on the fast path)."""

@@ -194,9 +194,14 @@ def read_table(path: str | os.PathLike, table: str) -> pd.DataFrame:
         raise TableError(f"{path}: not a readable Parquet file ({exc})") from exc
     df = arrow.to_pandas()
     _check_columns(df, TABLES[table], str(path))
-    meta = arrow.schema.metadata or {}
-    df.attrs = json.loads(meta.get(b"signsplat.meta", b"{}"))
+    df.attrs = table_metadata(arrow)
     return df
+
+
+def table_metadata(arrow: pa.Table) -> dict:
+    """The metadata :func:`write_table` stored in an Arrow table read from its file ({} when
+    none)."""
+    return json.loads((arrow.schema.metadata or {}).get(b"signsplat.meta", b"{}"))
 
 
 def read_columns(path: str | os.PathLike, columns: list[str]) -> pd.DataFrame:

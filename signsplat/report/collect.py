@@ -23,6 +23,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from signsplat.io.atomic import is_temporary
+from signsplat.io.tables import table_metadata
 
 # Columns of a Snakemake benchmark TSV that the report uses (seconds, CPU time, peak memory).
 BENCH_COLUMNS = ("s", "cpu_time", "max_rss")
@@ -72,7 +73,7 @@ def read_parquet(path: Path) -> pd.DataFrame | None:
         return None
     arrow = pq.read_table(path)
     df = arrow.to_pandas()
-    df.attrs = json.loads((arrow.schema.metadata or {}).get(b"signsplat.meta", b"{}"))
+    df.attrs = table_metadata(arrow)
     return df
 
 
