@@ -175,7 +175,10 @@ def test_long_sequence_streams_with_flat_memory(gloss_library):
     n_short, peak_short = _peak_memory(short, cfg)
     n_long, peak_long = _peak_memory(long, cfg)
     assert n_long > 8 * n_short
-    assert peak_long < 1.5 * peak_short + 64_000, (peak_short, peak_long)
+    # A stream holds a few frames whatever the length; holding every frame of the long
+    # sequence takes megabytes. The slack covers what the interpreter allocates on its own
+    # (caches, arenas), which depends on the tests that ran before in the same worker.
+    assert peak_long < 2 * peak_short + 500_000, (peak_short, peak_long)
 
 
 def test_write_stitched_table_streams_to_parquet(tmp_path, gloss_library):
