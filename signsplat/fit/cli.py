@@ -72,7 +72,7 @@ def keypoint_offsets(argv: list[str]) -> int:
 
     p = argparse.ArgumentParser(
         prog="signsplat keypoint-offsets",
-        description="Estimate where a detector puts each body and hand keypoint against the "
+        description="Estimate where a detector puts each body, hand and face keypoint against the "
         "body model's own (constant 3D offsets on the body's segments), from finished "
         "simulated scenes with the detector's keypoints; write the keypoint_offsets table "
         "that config fit.keypoint_offsets names.")

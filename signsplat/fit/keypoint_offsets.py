@@ -29,8 +29,8 @@ from signsplat.io.tables import Table, read_table, register_table
 _J = body_joints.JOINT_INDEX
 #: COCO-WholeBody keypoint -> the SMPL-X joint whose segment carries its offset: the segment
 #: the keypoint lies on or ends (an elbow on the upper arm, a wrist on the forearm, a hip on
-#: the pelvis, a shoulder on the collar, a knuckle or fingertip on the bone before it). Body,
-#: feet and hands; the face keeps the regressor's points.
+#: the pelvis, a shoulder on the collar, a knuckle or fingertip on the bone before it, a face
+#: point on the head). Every keypoint has one.
 ANCHORS: dict[str, str] = {
     "nose": "head", "left_eye": "head", "right_eye": "head", "left_ear": "head",
     "right_ear": "head", "left_shoulder": "left_collar", "right_shoulder": "right_collar",
@@ -45,6 +45,7 @@ ANCHORS: dict[str, str] = {
     **{f"{side}_hand_{finger}{k}": (f"{side}_wrist" if k == 1 else f"{side}_{finger}{k - 1}")
        for side in ("left", "right") for finger in ("thumb", "index", "middle", "ring", "pinky")
        for k in range(1, 5)},
+    **{f"face_{i}": "head" for i in range(68)},
 }
 _NAMES = body_joints.COCO_WHOLEBODY_NAMES
 #: (K,) keypoint indices with an anchor, and (K,) their SMPL-X joints
