@@ -317,6 +317,15 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
         assert f"--keypoint-offsets' '{table}'" in job
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}")
     assert "--keypoint-offsets" not in res.stdout
+    # MediaPipe's right fingers in the shipped keypoints: the pretrained table's finger rows
+    res = snakemake("-n", "-p", "--config", f"results={tmp_path}",
+                    f'fit={{"keypoint_offsets": {{"pretrained": "{table}"}}}}',
+                    'perception={"keypoints": {"hands": "mediapipe", "hand_sides": ["right"]}}')
+    assert res.returncode == 0, res.stderr + res.stdout
+    fits = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_smplx:")]
+    assert len(fits) == 2
+    for job in fits:
+        assert f"--keypoint-offsets' '{table}' '--keypoint-offsets-fingers' 'right'" in job
 
 
 def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path):

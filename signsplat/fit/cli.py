@@ -37,6 +37,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--keypoint-offsets",
                    help="keypoint_offsets table of the detector that found the keypoints "
                    "(signsplat.fit.keypoint_offsets); none = the body model's own keypoints")
+    p.add_argument("--keypoint-offsets-fingers", nargs="+", choices=("left", "right"),
+                   default=(), metavar="SIDE",
+                   help="apply only the table's finger rows of these hands (left, right): "
+                   "another detector's fingers merged into the keypoints "
+                   "(perception.keypoints.hands: mediapipe)")
     return p
 
 
@@ -56,7 +61,8 @@ def fit(argv: list[str]) -> int:
               gt_cameras=args.gt_cameras, scene=args.scene, num_betas=args.num_betas,
               num_expression=args.num_expression, device=str(select_device(args.device)),
               fps=args.fps, view=args.view, max_frames=args.max_frames,
-              keypoint_offsets=args.keypoint_offsets)
+              keypoint_offsets=args.keypoint_offsets,
+              offsets_fingers=tuple(args.keypoint_offsets_fingers))
     return 0
 
 

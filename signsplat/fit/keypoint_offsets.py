@@ -27,6 +27,7 @@ from signsplat.body import joints as body_joints
 from signsplat.io.tables import Table, read_table, register_table
 
 _J = body_joints.JOINT_INDEX
+FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 #: COCO-WholeBody keypoint -> the SMPL-X joint whose segment carries its offset: the segment
 #: the keypoint lies on or ends (an elbow on the upper arm, a wrist on the forearm, a hip on
 #: the pelvis, a shoulder on the collar, a knuckle or fingertip on the bone before it, a face
@@ -43,8 +44,7 @@ ANCHORS: dict[str, str] = {
     "right_heel": "right_ankle",
     **{f"{side}_hand_wrist": f"{side}_elbow" for side in ("left", "right")},
     **{f"{side}_hand_{finger}{k}": (f"{side}_wrist" if k == 1 else f"{side}_{finger}{k - 1}")
-       for side in ("left", "right") for finger in ("thumb", "index", "middle", "ring", "pinky")
-       for k in range(1, 5)},
+       for side in ("left", "right") for finger in FINGERS for k in range(1, 5)},
     **{f"face_{i}": "head" for i in range(68)},
 }
 _NAMES = body_joints.COCO_WHOLEBODY_NAMES
@@ -152,12 +152,40 @@ def segment_rotations(kpm, params: dict[str, np.ndarray], batch: int = 64
     return np.concatenate(kps), np.concatenate(rots)
 
 
-def offsets_file(fit_cfg: dict, detectors: str) -> str | None:
-    """The ``keypoint_offsets`` table a fit of keypoints found by ``detectors`` uses
-    (config ``fit.keypoint_offsets``); None for the simulator's keypoints or when unset."""
+def fit_offsets(fit_cfg: dict, detectors: str, keypoints_cfg: dict
+                ) -> tuple[str | None, tuple[str, ...]]:
+    """The ``keypoint_offsets`` table a fit of keypoints found by ``detectors`` uses (config
+    ``fit.keypoint_offsets``; None for the simulator's keypoints or when unset) and the hand
+    sides whose finger rows alone it applies (empty: every row).
+
+    With ``perception.keypoints.hands: mediapipe`` (``keypoints_cfg``) the shipped and wide
+    keypointers' fingers on ``hand_sides`` are MediaPipe's: a set without a table of its own
+    then takes the ``pretrained`` table's finger rows for those sides."""
     if fit_cfg["keypoints"] != "detected":
-        return None
-    return fit_cfg["keypoint_offsets"][detectors]
+        return None, ()
+    tables = fit_cfg["keypoint_offsets"]
+    if (tables[detectors] is None and detectors != "pretrained"
+            and keypoints_cfg["hands"] == "mediapipe" and tables["pretrained"] is not None):
+        return tables["pretrained"], tuple(keypoints_cfg["hand_sides"])
+    return tables[detectors], ()
+
+
+def finger_rows(df: pd.DataFrame, sides: tuple[str, ...] | list[str]) -> pd.DataFrame:
+    """The rows of a ``keypoint_offsets`` table for the finger points (knuckles to tips, not
+    the wrist) of the hands on ``sides`` (``left``, ``right``)."""
+    bad = sorted(set(sides) - {"left", "right"})
+    if bad:
+        raise ValueError(f"hand side(s) {bad}; allowed: left, right")
+    names = {f"{s}_hand_{f}{k}" for s in sides for f in FINGERS for k in range(1, 5)}
+    return df[df["name"].isin(names)]
+
+
+def offsets_label(path: str | os.PathLike | None, fingers: tuple[str, ...] = ()) -> str:
+    """How a fit's outputs name the offsets it used: ``none``, the table, or the table and
+    the sides whose finger rows alone it applied."""
+    if not path:
+        return "none"
+    return f"{path} (fingers: {', '.join(fingers)})" if fingers else str(path)
 
 
 def read_offsets(path: str | os.PathLike) -> pd.DataFrame:
@@ -178,6 +206,13 @@ def offsets_array(df: pd.DataFrame) -> np.ndarray:
     for row in df.itertuples(index=False):
         out[pos[int(row.keypoint)]] = (row.dx, row.dy, row.dz)
     return out
+
+
+def load_offsets(path: str | os.PathLike, fingers: tuple[str, ...] = ()) -> np.ndarray:
+    """(K,3) offsets of :data:`ANCHORED` from the table at ``path``; with ``fingers``, only
+    the finger rows of those hands (:func:`finger_rows`)."""
+    table = read_offsets(path)
+    return offsets_array(finger_rows(table, fingers) if fingers else table)
 
 
 @dataclass

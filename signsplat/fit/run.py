@@ -34,7 +34,7 @@ from signsplat.fit.overlay import write_overlays
 from signsplat.fit.sequence import FitResult
 from signsplat.fit.solver import stages_using
 from signsplat.io.atomic import write_bytes_atomic
-from signsplat.fit.keypoint_offsets import offsets_array, read_offsets
+from signsplat.fit.keypoint_offsets import load_offsets, offsets_label
 from signsplat.io.tables import TableError, write_table
 
 log = logging.getLogger("signsplat.fit")
@@ -49,7 +49,8 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
             scene: str | None = None, num_betas: int = 10, num_expression: int = 10,
             device: str = "cpu", fps: float = 25.0, view: int | None = None,
             max_frames: int | None = None, masks: str | os.PathLike | None = None,
-            keypoint_offsets: str | os.PathLike | None = None
+            keypoint_offsets: str | os.PathLike | None = None,
+            offsets_fingers: tuple[str, ...] = ()
             ) -> tuple[FitResult, np.ndarray, str, KeypointModel]:
     """Load, clean and fit. Returns (result, cleaned obs (V,T,133,3), mode, keypoint model).
 
@@ -58,7 +59,9 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     masks feed the multi-view stages with silhouette weights (read only when such a stage
     exists). ``fps``: frame rate when no frames table gives the timestamps.
     ``keypoint_offsets``: the detector's ``keypoint_offsets`` table; the fitted (and
-    evaluated) keypoints are then the detector's, not the body model's.
+    evaluated) keypoints are then the detector's, not the body model's. ``offsets_fingers``:
+    hand sides whose finger rows alone are applied (another detector's fingers merged into
+    the keypoints); empty = every row.
     """
     from signsplat.fit.multiview import fit_multiview
     from signsplat.fit.singleview import fit_singleview
@@ -115,10 +118,11 @@ def run_fit(cfg: dict, keypoints: str | os.PathLike, calibration: str | os.PathL
     offsets = None
     if keypoint_offsets:
         try:
-            offsets = offsets_array(read_offsets(keypoint_offsets))
+            offsets = load_offsets(keypoint_offsets, offsets_fingers)
         except (TableError, ValueError) as exc:
             raise InputError(str(exc)) from None
-        log.info("keypoints: the detector's, moved by %s (%d keypoints)", keypoint_offsets,
+        log.info("keypoints: the detector's, moved by %s (%d keypoints)",
+                 offsets_label(keypoint_offsets, offsets_fingers),
                  int((np.abs(offsets).sum(1) > 0).sum()))
     kpm = load_keypoint_model(body, num_betas, num_expression, device, offsets=offsets)
     mask_arr = images = extrinsics = None
@@ -178,7 +182,8 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
               gt_cameras: str | os.PathLike | None = None, scene: str | None = None,
               num_betas: int = 10, num_expression: int = 10, device: str = "cpu",
               fps: float = 25.0, view: int | None = None, max_frames: int | None = None,
-              keypoint_offsets: str | os.PathLike | None = None) -> dict:
+              keypoint_offsets: str | os.PathLike | None = None,
+              offsets_fingers: tuple[str, ...] = ()) -> dict:
     """:func:`run_fit`, then write every output into ``out_dir`` (see the module docstring).
 
     ``cfg['keypoints']`` names the keypoints' source in the tables. Returns the summary that
@@ -190,13 +195,14 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
                                      scene=scene, num_betas=num_betas,
                                      num_expression=num_expression, device=device, fps=fps,
                                      view=view, max_frames=max_frames, masks=masks,
-                                     keypoint_offsets=keypoint_offsets)
+                                     keypoint_offsets=keypoint_offsets,
+                                     offsets_fingers=offsets_fingers)
     result.seconds["cpu"] = time.process_time() - c0
     out_dir = Path(out_dir)
     name = str(result.log["scene"])
     meta = {"hand_mean": HAND_MEAN, "body_model": str(body), "mode": mode,
             "keypoints": cfg["keypoints"],
-            "keypoint_offsets": str(keypoint_offsets) if keypoint_offsets else "none",
+            "keypoint_offsets": offsets_label(keypoint_offsets, offsets_fingers),
             "world_frame": world_frame(mode, result.log.get("reference_view"))}
     data.write_outputs(out_dir, data.smplx_table(result.params, name, result.frames,
                                                  result.provenance, result.num_keypoints),

@@ -121,7 +121,36 @@ def test_the_table_reads_back_and_names_a_keypoint_without_anchor(tmp_path):
 
 def test_the_table_follows_the_detectors_and_only_for_detected_keypoints():
     cfg = validate({"keypoint_offsets": {"pretrained": "p.parquet"}}, "stages/fit.schema.yaml")
-    assert ko.offsets_file(cfg, "pretrained") == "p.parquet"
-    assert ko.offsets_file(cfg, "shipped") is None
+    kp = validate({}, "stages/perception.schema.yaml")["keypoints"]
+    assert ko.fit_offsets(cfg, "pretrained", kp) == ("p.parquet", ())
+    assert ko.fit_offsets(cfg, "shipped", kp) == (None, ())
+    # MediaPipe's fingers in the shipped keypoints: the pretrained table's finger rows
+    mp = {**kp, "hands": "mediapipe", "hand_sides": ["right"]}
+    assert ko.fit_offsets(cfg, "shipped", mp) == ("p.parquet", ("right",))
+    assert ko.fit_offsets(cfg, "wide", mp) == ("p.parquet", ("right",))
+    assert ko.fit_offsets(cfg, "pretrained", mp) == ("p.parquet", ())
+    own = validate({"keypoint_offsets": {"shipped": "s.parquet"}}, "stages/fit.schema.yaml")
+    assert ko.fit_offsets(own, "shipped", mp) == ("s.parquet", ())
     cfg["keypoints"] = "ground_truth"
-    assert ko.offsets_file(cfg, "pretrained") is None
+    assert ko.fit_offsets(cfg, "pretrained", kp) == (None, ())
+    assert ko.fit_offsets(cfg, "shipped", mp) == (None, ())
+
+
+def test_finger_rows_keep_only_the_fingers_of_the_named_hands(tmp_path):
+    est = np.full((K_ANCH, 3), 0.01)
+    s = ko.SceneSystem(np.zeros((K_ANCH, 3, 3)), np.zeros((K_ANCH, 3)),
+                       np.full(K_ANCH, 500), np.ones(K_ANCH))
+    df = ko.offsets_table(est, s, s, 10)
+    right = ko.finger_rows(df, ["right"])
+    assert len(right) == 20 and right["name"].str.match(r"right_hand_[a-z]+[1-4]$").all()
+    write_table(df, tmp_path / "all.parquet", "keypoint_offsets")
+    assert (np.abs(ko.load_offsets(tmp_path / "all.parquet")).sum(1) > 0).all()
+    moved = np.abs(ko.load_offsets(tmp_path / "all.parquet", ("right",))).sum(1) > 0
+    names = [ko._NAMES[k] for k in ko.ANCHORED[moved]]
+    assert len(names) == 20 and "right_hand_wrist" not in names
+    assert set(names) == set(right["name"])
+    assert len(ko.finger_rows(df, ("left", "right"))) == 40
+    with pytest.raises(ValueError, match=r"\['up'\]; allowed: left, right"):
+        ko.finger_rows(df, ["up"])
+    assert ko.offsets_label(None) == "none"
+    assert ko.offsets_label("t.parquet", ("right",)) == "t.parquet (fingers: right)"

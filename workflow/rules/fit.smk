@@ -3,7 +3,7 @@
 # fit.keypoints = detected (perception stage) or ground_truth (the simulator's
 # keypoints_gt.parquet; synthetic scenes only). Person masks (silhouette stage) come from the
 # same source. The frames table's images feed the overlays and the optical-flow term.
-from signsplat.fit.keypoint_offsets import offsets_file
+from signsplat.fit.keypoint_offsets import fit_offsets
 from signsplat.fit.mode import mode_config
 from signsplat.fit.sweep import DEFAULT_POINT
 
@@ -31,7 +31,7 @@ def fit_inputs(wildcards):
         "masks": fit_masks(wildcards),
         "body": rules.body_model.output[0],
     }
-    offsets = offsets_file(FIT_CFG, detectors(wildcards))
+    offsets, _ = fit_offsets(FIT_CFG, detectors(wildcards), PERCEPTION["keypoints"])
     if offsets:  # the detectors' own keypoints (config fit.keypoint_offsets)
         files["keypoint_offsets"] = offsets
     if wildcards.scene in SCENES:
@@ -52,6 +52,9 @@ def fit_extra_args(wildcards, input):
     args = []
     if "keypoint_offsets" in input.keys():
         args += ["--keypoint-offsets", input.keypoint_offsets]
+        _, fingers = fit_offsets(FIT_CFG, detectors(wildcards), PERCEPTION["keypoints"])
+        if fingers:  # MediaPipe's fingers in another detector's keypoints
+            args += ["--keypoint-offsets-fingers", *fingers]
     if "calibration" in input.keys():
         args += ["--calibration", input.calibration, "--gt-cameras", input.calibration,
                  "--gt-smplx", input.gt_smplx]
