@@ -1,8 +1,8 @@
 """Where another detector puts a keypoint on the body: constant 3D offsets per keypoint.
 
-A detector trained on real photos (MediaPipe's pose model, the ``pretrained`` detectors) does
-not mean by "left hip" the point the body model's regressor gives: its hips, ears and
-shoulders sit centimetres away, the same way on every body and from every view. The fit
+A detector trained on real photos (MediaPipe's models, the ``pretrained`` detectors) does
+not mean by "left hip" the point the body model's regressor gives: its hips, ears, shoulders
+and jaw contour sit centimetres away, the same way on every body and from every view. The fit
 would bend the body and move the cameras to make up for it. This module measures that gap
 on simulated scenes, where the body is known, and gives it to the fit's keypoint model as
 one 3D offset per keypoint, fixed in the frame of a body segment so that it turns with the
@@ -10,7 +10,8 @@ segment (:data:`ANCHORS`).
 
 Functional core: :func:`normal_equations` (one scene's Gauss-Newton system) and
 :func:`solve_offsets` (the pooled, ridge-regularised solution). :func:`scene_sample` reads a
-finished scene; :func:`read_offsets` the table (:data:`KEYPOINT_OFFSETS`) the fit loads.
+finished scene; :func:`read_offsets` the table (:data:`KEYPOINT_OFFSETS`) the fit loads;
+:func:`fit_offsets` says which table, and which of its rows, a fit of given detectors uses.
 """
 
 from __future__ import annotations
