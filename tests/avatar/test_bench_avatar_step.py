@@ -1,18 +1,15 @@
 """The step benchmark's instrumentation (benchmarks/bench_avatar_step.py): timing the parts of a
 training step segment by segment must not change what the step computes."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 import torch
 from avatar_scenes import make_scene, random_smplx, rig
+from benchmark_scripts import load_benchmark
 
 from signsplat.avatar.config import avatar_config
 from signsplat.avatar.train import AvatarTrainer
 from signsplat.body.model import BodyModel
 
-ROOT = Path(__file__).resolve().parents[2]
 SIZE = 24
 CFG = {
     "upsample": {"edge_length": 0.08, "face_area": 3e-3},
@@ -25,11 +22,7 @@ CFG = {
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_avatar_step", ROOT / "benchmarks" / "bench_avatar_step.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("bench_avatar_step")
 
 
 @pytest.fixture(scope="module")

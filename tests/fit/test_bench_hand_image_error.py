@@ -1,19 +1,11 @@
 """benchmarks/hand_image_error.py: a hand's image error split into its shift and its shape."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[2]
+from benchmark_scripts import load_benchmark
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("hand_image_error",
-                                                  ROOT / "benchmarks" / "hand_image_error.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("hand_image_error")
 
 
 def test_a_moved_hand_is_all_shift_and_a_turned_hand_is_shape():

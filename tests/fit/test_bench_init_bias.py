@@ -1,20 +1,12 @@
 """The keypoint sources of benchmarks/fit_init_bias.py: the oracle that removes a detector's
 constant offsets, and noise levels that do not depend on each other."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[2]
+from benchmark_scripts import load_benchmark
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("fit_init_bias",
-                                                  ROOT / "benchmarks" / "fit_init_bias.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("fit_init_bias")
 
 
 def test_offsets_removed_noise_levels_independent():
