@@ -17,18 +17,11 @@ import argparse
 
 import numpy as np
 import pandas as pd
-import torch
 
 from signsplat.body.joints import PART_LEFT_HAND, PART_RIGHT_HAND
 from signsplat.fit.bodyfit import load_keypoint_model
-from signsplat.fit.cameras import project
 from signsplat.fit.data import read_rig, read_smplx
-from signsplat.fit.evaluate import keypoints_of
-
-
-def _image(X: np.ndarray, rig) -> tuple[np.ndarray, np.ndarray]:
-    uv, z = project(*(torch.as_tensor(np.asarray(a, float)) for a in (X, rig.K, rig.R, rig.t)))
-    return uv.numpy(), z.numpy()
+from signsplat.fit.evaluate import in_images, keypoints_of
 
 
 def hand_errors(uv_fit: np.ndarray, uv_true: np.ndarray, seen: np.ndarray) -> dict[str, float]:
@@ -63,14 +56,10 @@ def main() -> None:
         _, _, gv = keypoints_of(kpm, {k: v[[pos[int(ff[i])] for i in idx]]
                                       for k, v in gp.items()})
         _, _, fv = keypoints_of(kpm, {k: v[idx] for k, v in fp.items()})
-        w = np.asarray(rig_g.width, float)[:, None, None]
-        h = np.asarray(rig_g.height, float)[:, None, None]
         for hand, label in (("left_hand", PART_LEFT_HAND), ("right_hand", PART_RIGHT_HAND)):
             part = labels == label
-            uf, _ = _image(fv[:, part], rig_f)
-            ug, zg = _image(gv[:, part], rig_g)
-            seen = (zg > 1e-6) & (ug[..., 0] >= 0) & (ug[..., 0] < w) & (ug[..., 1] >= 0) & \
-                (ug[..., 1] < h)
+            uf, _ = in_images(fv[:, part], rig_f)
+            ug, seen = in_images(gv[:, part], rig_g)
             rows.append({"fit": fit, "part": hand, **hand_errors(uf, ug, seen)})
     df = pd.DataFrame(rows)
     print(df.round(3).to_string(index=False))

@@ -135,24 +135,28 @@ def reprojection_px(uv: np.ndarray, kp: np.ndarray) -> float:
 IMAGE_PARTS = {0: "body", 1: "head", 2: "left_hand", 3: "right_hand"}
 
 
+def in_images(X: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``X`` (T,N,3) metres in every camera of ``rig``: pixels (V,T,N,2) and whether
+    the camera sees each point in its image (V,T,N): in front, inside the frame."""
+    uv, z = project(*(torch.as_tensor(np.asarray(a, float)) for a in (X, rig.K, rig.R, rig.t)))
+    uv, z = uv.numpy(), z.numpy()
+    w = np.asarray(rig.width, float)[:, None, None]
+    h = np.asarray(rig.height, float)[:, None, None]
+    seen = (z > 1e-6) & (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & \
+        (uv[..., 1] < h)
+    return uv, seen
+
+
 def image_errors(fit_verts: np.ndarray, fit_rig: Rig, gt_verts: np.ndarray, gt_rig: Rig,
                  part_labels: np.ndarray) -> list[tuple[str, str, float, str]]:
     """Where the fitted body lands in the images against the true one: mean pixel distance
     between the fitted vertices projected by the fitted cameras and the true vertices projected
     by the true cameras (no alignment: both are in pixels of the same images), over the
-    vertices the true camera sees in its image (in front, inside the frame). This is what
+    vertices the true camera sees in its image (:func:`in_images`). This is what
     an avatar trained on the fit inherits. Vertices (T,N,3) metres; part_labels (N,) of
     :data:`signsplat.body.joints.PART_NAMES`. Rows ('image_error', part, px, 'px')."""
-    def image(X, rig):
-        uv, z = project(*(torch.as_tensor(np.asarray(a, float)) for a in (X, rig.K, rig.R, rig.t)))
-        return uv.numpy(), z.numpy()
-
-    uv_f, _ = image(fit_verts, fit_rig)
-    uv_g, z_g = image(gt_verts, gt_rig)
-    w = np.asarray(gt_rig.width, float)[:, None, None]
-    h = np.asarray(gt_rig.height, float)[:, None, None]
-    seen = (z_g > 1e-6) & (uv_g[..., 0] >= 0) & (uv_g[..., 0] < w) & (uv_g[..., 1] >= 0) & \
-        (uv_g[..., 1] < h)
+    uv_f, _ = in_images(fit_verts, fit_rig)
+    uv_g, seen = in_images(gt_verts, gt_rig)
     err = np.linalg.norm(uv_f - uv_g, axis=-1)
 
     def mean(m):
