@@ -140,6 +140,15 @@ def morton_order(points: torch.Tensor, bits: int = 10) -> torch.Tensor:
     return torch.argsort(code, stable=True)
 
 
+def _tanh_ratio(norm: torch.Tensor) -> torch.Tensor:
+    """``tanh(n) / n``, 1 at ``n = 0`` (its series below 1e-3). ``raw * bound * tanh_ratio(|raw|)``
+    bounds a vector's length by ``bound`` with slope ``bound`` at zero, where the zero-initialised
+    head starts: written as ``tanh(n) / max(n, eps)`` the map is 0 there with a zero gradient,
+    and the network never leaves zero."""
+    small = norm < 1e-3
+    return torch.where(small, 1 - norm ** 2 / 3, torch.tanh(norm) / norm.clamp_min(1e-3))
+
+
 class ConvNet1d(nn.Module):
     """Light 1D-conv network over a point sequence.
 
@@ -339,8 +348,7 @@ class AvatarModel(nn.Module):
         raw = torch.empty_like(raw).index_copy(0, order, raw)
         v_parts = _PART_TO_GROUP.to(self.part.device)[self.part[: self.num_vertices]]
         bound = self.disp_bounds[v_parts][:, None]
-        norm = raw.norm(dim=-1, keepdim=True)
-        return raw * (bound * torch.tanh(norm) / norm.clamp_min(1e-9))
+        return raw * (bound * _tanh_ratio(raw.norm(dim=-1, keepdim=True)))
 
     # ------------------------------------------------------------------ forward
     def forward(self, v_shaped: torch.Tensor, vertices: torch.Tensor, transforms: torch.Tensor,

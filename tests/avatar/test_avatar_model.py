@@ -132,6 +132,19 @@ def test_displacement_cached_without_autograd_until_a_weight_changes(tiny_body):
     torch.testing.assert_close(c.detach(), b)
 
 
+def test_displacement_learns_from_its_zero_start(tiny_body):
+    """The displacement network's head starts at zero (no displacement); a loss on the
+    displacement must still reach its weights, or training never moves it off zero."""
+    model, _ = _model(tiny_body)
+    assert float(model.disp_net.head.weight.abs().max()) == 0.0
+    d = model.displacement()
+    assert float(d.abs().max()) == 0.0
+    (d * torch.randn_like(d)).sum().backward()
+    grad = model.disp_net.head.weight.grad
+    assert grad is not None and bool(torch.isfinite(grad).all())
+    assert float(grad.abs().max()) > 1e-4
+
+
 def test_flat_init_puts_discs_in_the_surface(tiny_body):
     flat, cfg = _model(tiny_body)
     ball, _ = _model(tiny_body, model={"flat_init": 0.0})
