@@ -225,16 +225,13 @@ def _head_material(p: np.ndarray, j: np.ndarray) -> np.ndarray:
     return mat
 
 
-_FINGERS_COCO = ("thumb", "index", "middle", "ring", "pinky")
-
-
 @functools.lru_cache(maxsize=8)
 def _hand_fingers(jkey: bytes, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fingers of one hand (straight in the rest pose): base points (5, 3), tips (5, 3) and
     the distances of joints 2 and 3 from the base along each finger (5, 2)."""
     j = np.frombuffer(jkey, dtype=np.float64).reshape(-1, 3)
     base, tip, cum = [], [], []
-    for finger in _FINGERS_COCO:
+    for finger in JN.COCO_FINGERS:
         p1, p2, p3 = (j[JI[f"{side}_{finger}{k}"]] for k in (1, 2, 3))
         d = (p3 - p2) / np.linalg.norm(p3 - p2)
         base.append(p1)

@@ -36,6 +36,7 @@ JOINT_INDEX = {name: i for i, name in enumerate(SMPLX_JOINT_NAMES)}
 LEFT_HAND_JOINTS = tuple(range(25, 40))
 RIGHT_HAND_JOINTS = tuple(range(40, 55))
 FINGERS = ("index", "middle", "pinky", "ring", "thumb")  # SMPL-X order within a hand
+COCO_FINGERS = ("thumb", "index", "middle", "ring", "pinky")  # COCO-WholeBody order
 
 # Parameter blocks of one SMPL-X frame, in the order used by flat vectors, with sizes.
 # ``betas`` and ``expression`` sizes are those of the shipped default (10 each).
@@ -58,7 +59,7 @@ COCO_FOOT_NAMES = (
     "right_heel",
 )
 _HAND21 = ("wrist",) + tuple(
-    f"{finger}{k}" for finger in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4)
+    f"{finger}{k}" for finger in COCO_FINGERS for k in (1, 2, 3, 4)
 )
 COCO_WHOLEBODY_NAMES: tuple[str, ...] = (
     COCO_BODY_NAMES + COCO_FOOT_NAMES + tuple(f"face_{i}" for i in range(68))

@@ -42,13 +42,12 @@ _BODY_SOURCES = (
 )
 _FEET_SOURCES = (("v", "LBigToe"), ("v", "LSmallToe"), ("v", "LHeel"), ("v", "RBigToe"),
                  ("v", "RSmallToe"), ("v", "RHeel"))
-_COCO_FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
 
 def _hand_sources(side: str) -> list[tuple[str, str]]:
     s = "l" if side == "left" else "r"
     out = [("j", f"{side}_wrist")]
-    for finger in _COCO_FINGERS:
+    for finger in JN.COCO_FINGERS:
         out += [("j", f"{side}_{finger}{k}") for k in (1, 2, 3)] + [("v", f"{s}{finger}")]
     return out
 

@@ -28,7 +28,6 @@ from signsplat.body import joints as body_joints
 from signsplat.io.tables import Table, read_table, register_table
 
 _J = body_joints.JOINT_INDEX
-FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 #: COCO-WholeBody keypoint -> the SMPL-X joint whose segment carries its offset: the segment
 #: the keypoint lies on or ends (an elbow on the upper arm, a wrist on the forearm, a hip on
 #: the pelvis, a shoulder on the collar, a knuckle or fingertip on the bone before it, a face
@@ -45,7 +44,7 @@ ANCHORS: dict[str, str] = {
     "right_heel": "right_ankle",
     **{f"{side}_hand_wrist": f"{side}_elbow" for side in ("left", "right")},
     **{f"{side}_hand_{finger}{k}": (f"{side}_wrist" if k == 1 else f"{side}_{finger}{k - 1}")
-       for side in ("left", "right") for finger in FINGERS for k in range(1, 5)},
+       for side in ("left", "right") for finger in body_joints.COCO_FINGERS for k in range(1, 5)},
     **{f"face_{i}": "head" for i in range(68)},
 }
 _NAMES = body_joints.COCO_WHOLEBODY_NAMES
@@ -177,7 +176,8 @@ def finger_rows(df: pd.DataFrame, sides: tuple[str, ...] | list[str]) -> pd.Data
     bad = sorted(set(sides) - {"left", "right"})
     if bad:
         raise ValueError(f"hand side(s) {bad}; allowed: left, right")
-    names = {f"{s}_hand_{f}{k}" for s in sides for f in FINGERS for k in range(1, 5)}
+    names = {f"{s}_hand_{f}{k}" for s in sides for f in body_joints.COCO_FINGERS
+             for k in range(1, 5)}
     return df[df["name"].isin(names)]
 
 
