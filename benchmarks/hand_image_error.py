@@ -47,11 +47,11 @@ def main() -> None:
     labels = kpm.model.part_labels.cpu().numpy()
     gp, gf = read_smplx(f"{args.sim}/smplx_gt.parquet")
     rig_g, _ = read_rig(f"{args.sim}/cameras.parquet")
+    pos = {int(f): i for i, f in enumerate(gf)}
     rows = []
     for fit in args.fits:
         fp, ff = read_smplx(f"{fit}/smplx_fit.parquet")
         rig_f, _ = read_rig(f"{fit}/cameras_fit.parquet")
-        pos = {int(f): i for i, f in enumerate(gf)}
         idx = [i for i, f in enumerate(ff) if int(f) in pos]
         _, _, gv = keypoints_of(kpm, {k: v[[pos[int(ff[i])] for i in idx]]
                                       for k, v in gp.items()})
