@@ -212,7 +212,8 @@ def test_dry_run_of_the_ablations_target_plans_one_variant_per_switch(tmp_path):
     on_gt = base.get("train", {}).get("smplx_source") == "ground_truth"
     source_row = "abl_fitted_smplx" if on_gt else "abl_gt_smplx"
     budgets = _default_studies()[0]["iterations"]
-    rows = {full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_static", source_row}
+    rows = {full, "abl_no_reg", "abl_no_dens", "abl_no_acc", "abl_no_disp", "abl_static",
+            source_row}
     # every row at each budget, and the regulariser's scales besides 0 and 1 (which are the
     # rows without and with it)
     scales = [s for s in _default_studies()[0]["regularizer_scales"] if s not in (0, 1)]
@@ -334,7 +335,7 @@ def test_tiny_study_config_reuses_equal_variants_and_names_a_bad_scene(tmp_path)
     assert res.returncode == 0, res.stderr + res.stdout
     assert planned_variants(res.stdout, "train_avatar") == {
         "demo", "abl_full_i4", "abl_no_reg_i4", "abl_no_dens_i4", "abl_no_acc_i4",
-        "abl_static_i4", "abl_gt_smplx_i4", "abl_reg0p5_i4", "sw_iterations2"}
+        "abl_no_disp_i4", "abl_static_i4", "abl_gt_smplx_i4", "abl_reg0p5_i4", "sw_iterations2"}
     bad = tiny_study_config(tmp_path, ablations={"scene": "nowhere", "base": {}})
     res = snakemake("-n", "ablations", "--configfile", str(bad))
     assert res.returncode != 0

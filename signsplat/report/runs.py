@@ -11,6 +11,7 @@ import pandas as pd
 from signsplat.io.atomic import atomic_path
 from signsplat.io.tables import Table, register_table, write_table
 from signsplat.report.collect import read_benchmarks, read_parquet
+from signsplat.report.variants import SWITCH_FIELDS
 
 _SCORES = {
     "psnr": "float64 dB, full image, background replaced, no test-time refinement (held-out "
@@ -37,6 +38,7 @@ ABLATIONS_TABLE = register_table(Table(
      "regularize": "bool neighbourhood variance regularisation on",
      "densify": "bool adaptive density control on",
      "accumulate": "bool loss accumulation over poses on",
+     "displacement": "bool the displacement network of the vertices (paper eq. 3) on",
      "pose_dependent": "bool pose-dependent networks on (off = static mesh-anchored)",
      **_SCORES},
     extra_columns=True,
@@ -161,20 +163,19 @@ def _drop_missing_lpips(df: pd.DataFrame) -> pd.DataFrame:
 
 def ablation_table(results: Path, scene: str, rows: list[dict]) -> pd.DataFrame:
     """``rows``: the study's rows in order, each ``{"label", "iterations", "variant"}`` and the
-    switch columns (regularize, densify, accumulate, pose_dependent;
+    switch columns (:data:`signsplat.report.variants.SWITCH_FIELDS`;
     :func:`signsplat.report.variants.ablation_columns`). One table row per (row, split
     scored)."""
     bench = read_benchmarks(Path(results) / "_benchmarks")
     out = []
     for spec in rows:
-        switches = {k: spec.get(k) for k in ("regularize", "densify", "accumulate",
-                                             "pose_dependent")}
+        switches = {k: spec.get(k) for k in SWITCH_FIELDS}
         for r in variant_rows(results, scene, spec["variant"], bench, SPLITS):
             out.append({**r, **switches, "variant": spec["label"],
                         "iterations": int(spec["iterations"]), "avatar_variant": spec["variant"]})
-    cols = ["variant", "iterations", "split", "test_views", "avatar_variant", "regularize",
-            "densify", "accumulate", "pose_dependent", "smplx_source", "psnr", "ssim", "lpips",
-            "hand_psnr", "train_seconds", "eval_seconds", "points"]
+    cols = ["variant", "iterations", "split", "test_views", "avatar_variant", *SWITCH_FIELDS,
+            "smplx_source", "psnr", "ssim", "lpips", "hand_psnr", "train_seconds",
+            "eval_seconds", "points"]
     return _drop_missing_lpips(pd.DataFrame(out, columns=cols))
 
 

@@ -4,7 +4,7 @@ A variant is the ``avatar`` config section with overrides applied (see workflow/
 Ablation variants start from the paper's full model: the demo profile plus the config's
 ``ablations.base`` with every switch on (:data:`FULL_MODEL`; the demo profile itself leaves
 regularisation off). Each row then flips exactly one switch of the avatar schema (paper Table 5,
-plus the static mesh-anchored baseline and the SMPL-X source). Sweep variants change one of
+plus the displacement of eq. 3, the static mesh-anchored baseline and the SMPL-X source). Sweep variants change one of
 training iterations, image resolution or point budget of the ``sweep.base`` setting at a time
 (a one-factor-at-a-time sweep around the centre).
 """
@@ -22,15 +22,18 @@ _SWITCHES: list[tuple[str, str, dict]] = [
     ("abl_no_reg", "w/o regularisation", {"regularize": {"enabled": False}}),
     ("abl_no_dens", "w/o densification", {"strategy": {"enabled": False}}),
     ("abl_no_acc", "w/o loss accumulation", {"train": {"accumulate": False}}),
+    ("abl_no_disp", "w/o displacement (eq. 3)", {"model": {"displacement": False}}),
     ("abl_static", "w/o pose-dependent networks (static mesh-anchored)",
      {"model": {"pose_dependent": False}}),
 ]
 # The paper's full model: every switch on, whatever the demo profile or ablations.base say.
 FULL_MODEL = {"regularize": {"enabled": True}, "strategy": {"enabled": True},
-              "train": {"accumulate": True}, "model": {"pose_dependent": True}}
+              "train": {"accumulate": True},
+              "model": {"displacement": True, "pose_dependent": True}}
 # The avatar-schema fields read back as the switch columns of ablations.parquet.
 SWITCH_FIELDS = {"regularize": ("regularize", "enabled"), "densify": ("strategy", "enabled"),
-                 "accumulate": ("train", "accumulate"), "pose_dependent": ("model", "pose_dependent")}
+                 "accumulate": ("train", "accumulate"), "displacement": ("model", "displacement"),
+                 "pose_dependent": ("model", "pose_dependent")}
 SWEEP_AXES = {"iterations": ("train", "iterations"), "resolution": ("train", "resolution"),
               "max_points": ("strategy", "max_points")}
 
@@ -86,7 +89,7 @@ def regularizer_plan(full: dict, scales: list[float], resolved_full: dict
 
 
 def switch_values(resolved: dict) -> dict:
-    """The switch columns (regularize, densify, accumulate, pose_dependent, smplx_source) of a
+    """The switch columns (:data:`SWITCH_FIELDS` and smplx_source) of a
     resolved avatar config."""
     out = {k: bool(_get(resolved, p)) for k, p in SWITCH_FIELDS.items()}
     out["smplx_source"] = resolved["train"]["smplx_source"]

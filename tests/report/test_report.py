@@ -162,7 +162,8 @@ def test_report_command_writes_the_page(results_dir, tmp_path):
     sw = read_table(sweep_out, "sweep")  # registered columns all present
     assert sw.setting.tolist() == ["sw_it150", "demo"] and read_rgb(plot).shape[0] > 100
     abl_out = tmp_path / "ablations.parquet"
-    on = {"regularize": True, "densify": True, "accumulate": True, "pose_dependent": True}
+    on = {"regularize": True, "densify": True, "accumulate": True, "displacement": True,
+          "pose_dependent": True}
     variants = [{"label": "w/o reg", "iterations": 300, "variant": "abl_no_reg", **on,
                  "regularize": False},
                 {"label": "full", "iterations": 300, "variant": "abl_full", **on}]

@@ -37,7 +37,8 @@ def test_every_ablation_flips_exactly_one_switch_of_the_base():
     full = resolve(plan[0].overrides)
     assert full["train"]["iterations"] == 12 and full["profile"] == "demo"
     expected = {"abl_no_reg": ("regularize", "enabled"), "abl_no_dens": ("strategy", "enabled"),
-                "abl_no_acc": ("train", "accumulate"), "abl_static": ("model", "pose_dependent"),
+                "abl_no_acc": ("train", "accumulate"), "abl_no_disp": ("model", "displacement"),
+                "abl_static": ("model", "pose_dependent"),
                 "abl_gt_smplx": ("train", "smplx_source")}
     assert [p.name for p in plan[1:]] == list(expected)
     for p in plan[1:]:
@@ -45,16 +46,18 @@ def test_every_ablation_flips_exactly_one_switch_of_the_base():
         assert _diff(full, cfg) == [expected[p.name]], p.name
     assert resolve(plan[-1].overrides)["train"]["smplx_source"] == "ground_truth"
     assert switch_values(full) == {"regularize": True, "densify": True, "accumulate": True,
-                                   "pose_dependent": True, "smplx_source": "fitted"}
-    assert set(SWITCH_FIELDS) == {"regularize", "densify", "accumulate", "pose_dependent"}
+                                   "displacement": True, "pose_dependent": True,
+                                   "smplx_source": "fitted"}
+    assert set(SWITCH_FIELDS) == {"regularize", "densify", "accumulate", "displacement",
+                                  "pose_dependent"}
 
 
 def test_the_full_row_is_the_papers_model_whatever_the_demo_or_base_switch_off():
     assert resolve({"profile": "demo"})["regularize"]["enabled"] is False  # the demo's choice
     plan = ablation_plan({"strategy": {"enabled": False}}, "fitted")
     assert switch_values(resolve(plan[0].overrides)) == {
-        "regularize": True, "densify": True, "accumulate": True, "pose_dependent": True,
-        "smplx_source": "fitted"}
+        "regularize": True, "densify": True, "accumulate": True, "displacement": True,
+        "pose_dependent": True, "smplx_source": "fitted"}
     no_dens = next(p for p in plan if p.name == "abl_no_dens")
     assert switch_values(resolve(no_dens.overrides))["densify"] is False
 
