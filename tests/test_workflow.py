@@ -13,6 +13,7 @@ from workflow_runs import snakemake as run_snakemake
 from workflow_runs import tiny_config, tiny_local_run
 
 from signsplat.avatar.config import resolve
+from signsplat.io.tables import read_table, write_table
 from signsplat.report.variants import ablation_plan, sweep_plan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,6 +168,28 @@ def test_keypoint_offsets_command_on_the_tiny_scene(tiny_run, tmp_path, capsys):
     assert table.attrs["detector"] == "shipped"
     assert main(["keypoint-offsets", "--scenes", str(tmp_path / "nowhere"), *args]) == 2
     assert "nowhere" in capsys.readouterr().err
+    # a body file with more shape coefficients than 10 (two more, zero, so the same body) and
+    # a scene whose true body uses them: each scene is posed with its own count
+    arrays = dict(np.load(results / "_assets" / "body_model.npz"))
+    n = int(arrays["num_shape_dirs"])
+    sd = arrays["shapedirs"]
+    arrays["shapedirs"] = np.concatenate([sd[:, :, :n], np.zeros(sd.shape[:2] + (2,)),
+                                          sd[:, :, n:]], axis=2)
+    arrays["num_shape_dirs"] = np.array(n + 2)
+    arrays["shape_names"] = np.concatenate([arrays["shape_names"], ["extra0", "extra1"]])
+    body = tmp_path / "body_more_betas.npz"
+    np.savez(body, **arrays)
+    other = tmp_path / "more_betas"
+    for name in ("sim/cameras.parquet", "perception/keypoints.parquet"):
+        (other / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(results / "tiny" / name, other / name)
+    gt = read_table(results / "tiny" / "sim" / "smplx_gt.parquet", "smplx_params")
+    gt["betas"] = [np.concatenate([b, [0.0, 0.0]]) for b in gt["betas"]]
+    write_table(gt, other / "sim" / "smplx_gt.parquet", "smplx_params")
+    args[1] = str(body)
+    assert main(["keypoint-offsets", "--scenes", str(results / "tiny"), str(other),
+                 *args]) == 0, capsys.readouterr().err
+    assert np.isfinite(offsets_array(read_offsets(out))).all()
 
 
 # A tiny ablation study and sweep (merged over config/config.yaml's sections: the default

@@ -95,11 +95,18 @@ def keypoint_offsets(argv: list[str]) -> int:
     p.add_argument("--min-observations", type=int, default=200)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    kpm = load_keypoint_model(args.body, 10, 10)
+    models = {}  # one keypoint model per count of shape and expression coefficients
+
+    def keypoint_model(num_betas: int, num_expression: int):
+        key = (num_betas, num_expression)
+        if key not in models:
+            models[key] = load_keypoint_model(args.body, num_betas, num_expression)
+        return models[key]
+
     samples = []
     for d in args.scenes:
         try:
-            samples.append(ko.scene_sample(d, kpm))
+            samples.append(ko.scene_sample(d, keypoint_model))
         except ValueError as exc:
             raise InputError(str(exc)) from None
     offsets, before, after = ko.estimate_offsets(samples, args.min_score, args.ridge,

@@ -271,10 +271,11 @@ def offsets_table(offsets: np.ndarray, before: SceneSystem, after: SceneSystem,
     return pd.DataFrame(rows, columns=list(KEYPOINT_OFFSETS.columns))
 
 
-def scene_sample(scene_dir: str | os.PathLike, kpm) -> SceneSample:
+def scene_sample(scene_dir: str | os.PathLike, keypoint_model) -> SceneSample:
     """A finished simulated scene's :class:`SceneSample`: ``sim/smplx_gt.parquet``,
     ``sim/cameras.parquet`` (static cameras, or each view's mean camera) and the detector's
-    ``perception/keypoints.parquet``, on the frames both have."""
+    ``perception/keypoints.parquet``, on the frames both have. ``keypoint_model(num_betas,
+    num_expression)`` gives the fit's keypoint model for the true body's coefficient counts."""
     from signsplat.fit import data
 
     d = Path(scene_dir)
@@ -285,6 +286,7 @@ def scene_sample(scene_dir: str | os.PathLike, kpm) -> SceneSample:
     if not len(common):
         raise ValueError(f"{d}: the detections and the true body share no frame")
     params = {k: v[np.searchsorted(gt_frames, common)] for k, v in params.items()}
+    kpm = keypoint_model(params["betas"].shape[1], params["expression"].shape[1])
     kp, rot = segment_rotations(kpm, params)
     return SceneSample(kp=kp, rot=rot, K=rig.K, R=rig.R, t=rig.t,
                        obs=obs[:, np.searchsorted(frames, common)])
