@@ -11,6 +11,7 @@ import yaml
 from signsplat.avatar.config import EVAL_ONLY_KEYS
 from signsplat.config import ConfigError, validate
 from signsplat.plan import plan
+from signsplat.report.variants import SWITCH_FIELDS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,12 +37,14 @@ def test_default_config_plans_the_demo_studies_and_the_default_scene(tmp_path):
     assert p.fit_mode("single", cfg["fit"]) == "singleview"
     assert {"demo", "quality"} <= set(p.variants)
     assert p.variants["quality"]["train"]["iterations"] > p.variants["demo"]["train"]["iterations"]
-    # one row per switch plus the SMPL-X source row, at each budget; each a distinct variant
+    # the full model, one row per switch off and the SMPL-X source row, at each budget; each
+    # a distinct variant
     budgets = cfg["ablations"]["iterations"]
-    assert [r["label"] for r in p.ablations[::6]] == ["full"] * len(budgets)
-    assert len(p.ablations) == 6 * len(budgets)
-    assert len({r["variant"] for r in p.ablations}) == 6 * len(budgets)
-    assert [r["iterations"] for r in p.ablations] == [b for b in budgets for _ in range(6)]
+    n = len(SWITCH_FIELDS) + 2
+    assert [r["label"] for r in p.ablations[::n]] == ["full"] * len(budgets)
+    assert len(p.ablations) == n * len(budgets)
+    assert len({r["variant"] for r in p.ablations}) == n * len(budgets)
+    assert [r["iterations"] for r in p.ablations] == [b for b in budgets for _ in range(n)]
     assert {tuple(p.variants[r["variant"]]["train"]["test_views"]) for r in p.ablations} == \
         {tuple(cfg["ablations"]["test_views"])}
     # the regulariser's sweep: scale 0 is the row without it, scale 1 the full model
