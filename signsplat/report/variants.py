@@ -4,9 +4,9 @@ A variant is the ``avatar`` config section with overrides applied (see workflow/
 Ablation variants start from the paper's full model: the demo profile plus the config's
 ``ablations.base`` with every switch on (:data:`FULL_MODEL`; the demo profile itself leaves
 regularisation off). Each row then flips exactly one switch of the avatar schema (paper Table 5,
-plus the displacement of eq. 3, the static mesh-anchored baseline and the SMPL-X source). Sweep variants change one of
-training iterations, image resolution or point budget of the ``sweep.base`` setting at a time
-(a one-factor-at-a-time sweep around the centre).
+plus the displacement of eq. 3, the static mesh-anchored baseline and the SMPL-X source).
+Sweep variants change one of training iterations, image resolution or point budget of the
+``sweep.base`` setting at a time (a one-factor-at-a-time sweep around the centre).
 """
 
 from __future__ import annotations
