@@ -11,29 +11,35 @@ Sweep variants change one of training iterations, image resolution or point budg
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
 from signsplat.config import deep_merge
 
-# (variant name, row label, override, switches of the row); `full` flips nothing.
-_SWITCHES: list[tuple[str, str, dict]] = [
-    ("abl_full", "full", {}),
-    ("abl_no_reg", "w/o regularisation", {"regularize": {"enabled": False}}),
-    ("abl_no_dens", "w/o densification", {"strategy": {"enabled": False}}),
-    ("abl_no_acc", "w/o loss accumulation", {"train": {"accumulate": False}}),
-    ("abl_no_disp", "w/o displacement (eq. 3)", {"model": {"displacement": False}}),
-    ("abl_static", "w/o pose-dependent networks (static mesh-anchored)",
-     {"model": {"pose_dependent": False}}),
-]
-# The paper's full model: every switch on, whatever the demo profile or ablations.base say.
-FULL_MODEL = {"regularize": {"enabled": True}, "strategy": {"enabled": True},
-              "train": {"accumulate": True},
-              "model": {"displacement": True, "pose_dependent": True}}
-# The avatar-schema fields read back as the switch columns of ablations.parquet.
+# The avatar-schema fields of the ablation's switches, read back as the switch columns of
+# ablations.parquet.
 SWITCH_FIELDS = {"regularize": ("regularize", "enabled"), "densify": ("strategy", "enabled"),
                  "accumulate": ("train", "accumulate"), "displacement": ("model", "displacement"),
                  "pose_dependent": ("model", "pose_dependent")}
+# (variant name, row label, the switch of SWITCH_FIELDS the row turns off; None: the full row)
+_ROWS: list[tuple[str, str, str | None]] = [
+    ("abl_full", "full", None),
+    ("abl_no_reg", "w/o regularisation", "regularize"),
+    ("abl_no_dens", "w/o densification", "densify"),
+    ("abl_no_acc", "w/o loss accumulation", "accumulate"),
+    ("abl_no_disp", "w/o displacement (eq. 3)", "displacement"),
+    ("abl_static", "w/o pose-dependent networks (static mesh-anchored)", "pose_dependent"),
+]
+
+
+def _switch(name: str, on: bool) -> dict:
+    section, key = SWITCH_FIELDS[name]
+    return {section: {key: on}}
+
+
+# The paper's full model: every switch on, whatever the demo profile or ablations.base say.
+FULL_MODEL = functools.reduce(deep_merge, (_switch(n, True) for n in SWITCH_FIELDS), {})
 SWEEP_AXES = {"iterations": ("train", "iterations"), "resolution": ("train", "resolution"),
               "max_points": ("strategy", "max_points")}
 
@@ -60,7 +66,8 @@ def ablation_plan(base: dict, base_source: str, with_source: bool = True) -> lis
     the sequence has ground truth). Every row starts from :data:`FULL_MODEL`, so a switch in
     ``base`` is overridden."""
     start = deep_merge(deep_merge({"profile": "demo"}, base), FULL_MODEL)
-    rows = [Planned(label, name, deep_merge(start, over)) for name, label, over in _SWITCHES]
+    rows = [Planned(label, name, deep_merge(start, _switch(off, False) if off else {}))
+            for name, label, off in _ROWS]
     if with_source:
         other = "ground_truth" if base_source == "fitted" else "fitted"
         name = "abl_gt_smplx" if other == "ground_truth" else "abl_fitted_smplx"
