@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 from pathlib import Path
 
@@ -95,14 +96,9 @@ def keypoint_offsets(argv: list[str]) -> int:
     p.add_argument("--min-observations", type=int, default=200)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    models = {}  # one keypoint model per count of shape and expression coefficients
-
-    def keypoint_model(num_betas: int, num_expression: int):
-        key = (num_betas, num_expression)
-        if key not in models:
-            models[key] = load_keypoint_model(args.body, num_betas, num_expression)
-        return models[key]
-
+    # one keypoint model per count of shape and expression coefficients
+    keypoint_model = functools.lru_cache(maxsize=None)(
+        functools.partial(load_keypoint_model, args.body))
     samples = []
     for d in args.scenes:
         try:
