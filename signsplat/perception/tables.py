@@ -40,11 +40,18 @@ PERSONS_TABLE = register_table(Table(
         "head_y0": "float32 head box top edge in pixels",
         "head_x1": "float32 head box right edge in pixels",
         "head_y1": "float32 head box bottom edge in pixels",
+        "appearance": "float32 Bhattacharyya distance of this person's colours above the hips "
+                      "to the signer's kept from earlier frames (0 same, 1 disjoint); NaN "
+                      "where not measured (no earlier colours, no pose found, or the check "
+                      "off)",
         "chosen": "bool this person is the signer (the mask and keypoints are theirs)",
-        "chosen_by": "str how: 'tracked' (same head as the last frame's signer) or the rule "
-                     "(largest | central | box); empty when not chosen",
+        "chosen_by": "str how: 'tracked' (the pose model's region or the head box of the last "
+                     "frame's signer), 'appearance' (another person matched the signer's "
+                     "colours better) or the rule (largest | central | box); empty when not "
+                     "chosen",
     },
-    metadata={"rule": "the signer rule as JSON (rule, box, track_iou, margin)"},
+    metadata={"rule": "the signer rule as JSON (rule, box, track_iou, margin, patience, "
+                      "appearance_margin, appearance_max)"},
 ))
 
 EVAL_TABLE = register_table(Table(

@@ -28,7 +28,8 @@ def det(*people):
 
 
 def rule(name="largest", box=None, patience=2):
-    return SignerRule(name, box, 0.3, 0.03, patience)
+    return SignerRule.from_config({**CFG["signer"], "rule": name, "box": box,
+                                   "patience": patience})
 
 
 def test_rules_pick_largest_central_and_boxed():
@@ -74,7 +75,7 @@ def test_sheet_signer_column():
     assert perception_for({"sequence": "c", "source": "video"}, CFG) is CFG
     assert SignerRule.from_config(cfg["signer"]).box == (5.0, 6.0, 7.0, 8.0)
     with pytest.raises(ValueError, match="needs a box"):
-        SignerRule("box", None, 0.3, 0.03, 2)
+        SignerRule.from_config({**CFG["signer"], "rule": "box", "box": None})
 
 
 def test_mask_is_cut_to_the_signer():
@@ -86,3 +87,48 @@ def test_mask_is_cut_to_the_signer():
     assert region[:, 13:41].all()  # the signer grown by 3 px on the free side ...
     assert not region[:, :13].any()
     assert not region[:, 41:].any()  # ... and not where the other one is more likely
+
+
+def _person(colour_top, colour_legs, shape=(120, 80)) -> tuple[np.ndarray, np.ndarray]:
+    """An RGB image and the person's region: a body of one colour above row 60 and another
+    below it, on grey."""
+    image = np.full((*shape, 3), 128, np.uint8)
+    region = np.zeros(shape, bool)
+    region[10:110, 20:60] = True
+    image[10:60, 20:60] = colour_top
+    image[60:110, 20:60] = colour_legs
+    return image, region
+
+
+def test_appearance_tells_people_apart_by_their_clothes_above_the_hips():
+    from signsplat.perception.pretrained.select import appearance, appearance_distance
+
+    navy, black, white, jeans = (25, 35, 80), (15, 15, 15), (240, 240, 240), (40, 60, 110)
+    suit = appearance(*_person(navy, jeans), hip_y=60)
+    assert suit is not None and suit.dtype == np.float32 and abs(float(suit.sum()) - 1) < 1e-5
+    # the same clothes on top, other legs: the same person's colours
+    assert appearance_distance(suit, appearance(*_person(navy, white), hip_y=60)) < 1e-3
+    # another shirt, the same legs: another person
+    assert appearance_distance(suit, appearance(*_person(black, jeans), hip_y=60)) > 0.9
+    # half navy, half white on top: in between
+    image, region = _person(navy, jeans)
+    image[10:60, 40:60] = white
+    half = appearance_distance(suit, appearance(image, region, hip_y=60))
+    assert 0.2 < half < 0.9
+    # too little of them above the hips (or a hip above the frame): nothing to compare
+    image, region = _person(navy, jeans)
+    assert appearance(image, region, hip_y=11) is None
+    assert appearance(image, region, hip_y=-5) is None
+
+
+def test_appearance_switch_needs_a_clearly_better_match():
+    from signsplat.perception.pretrained.select import appearance_switch
+
+    assert appearance_switch(0.1, [0.7, 0.6], 0.2, 0.5) is None  # the signer matches best
+    assert appearance_switch(0.7, [0.6, 0.2], 0.2, 0.5) == 1  # the second other is the signer
+    assert appearance_switch(0.35, [0.2], 0.2, 0.5) is None  # better, but not by the margin
+    assert appearance_switch(0.9, [0.6], 0.2, 0.5) is None  # nobody looks like the signer
+    assert appearance_switch(0.7, [np.nan, 0.3], 0.2, 0.5) == 1  # unmeasured others skipped
+    assert appearance_switch(np.nan, [0.1], 0.2, 0.5) is None  # nothing against the chosen
+    assert appearance_switch(0.7, [], 0.2, 0.5) is None
+    assert appearance_switch(0.7, [np.nan], 0.2, 0.5) is None

@@ -15,6 +15,14 @@ chosen head box by at least ``track_iou`` (heads of different people hardly over
 bodies often do). When the track is lost the frame has no signer, and the last head box is
 looked for again, for up to ``patience`` frames; then the rule chooses again.
 
+Who the signer is, by colour: where two people cross, the pose model's region can slide from
+the signer onto the other person, and the box rule, asked again, takes whoever stands where
+the signer stood. So the signer's colours above the hips (a hue-saturation-value histogram of
+their segmentation, :func:`appearance`) are kept from frame to frame, blended in only where
+no one else overlaps them; when another person's colours match them better than the chosen
+person's by more than ``appearance_margin`` (Bhattacharyya distance, 0 same to 1 disjoint)
+and within ``appearance_max``, that person is taken instead ('appearance').
+
 Mask: the pose landmark model's person segmentation (sigmoid of its logits, in each person's
 region) mapped back to the frame; the signer's, above 0.5 and grown by ``margin`` x the body
 size, minus the pixels a nearby person claims with a higher probability, multiplies the matting
@@ -42,6 +50,8 @@ class SignerRule:
     track_iou: float
     margin: float
     patience: int
+    appearance_margin: float | None  # None: no identity check by colour
+    appearance_max: float
 
     def __post_init__(self):
         if self.rule not in RULES:
@@ -52,9 +62,11 @@ class SignerRule:
     @classmethod
     def from_config(cls, signer: dict) -> SignerRule:
         box = signer.get("box")
+        margin = signer["appearance_margin"]
         return cls(signer["rule"], tuple(float(v) for v in box) if box else None,
                    float(signer["track_iou"]), float(signer["margin"]),
-                   int(signer["patience"]))
+                   int(signer["patience"]), None if margin is None else float(margin),
+                   float(signer["appearance_max"]))
 
 
 def parse_signer(text: str) -> dict:
@@ -159,9 +171,53 @@ def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
     return keep
 
 
+#: hue x saturation x value bins of :func:`appearance` (OpenCV's hue runs 0-180)
+APPEARANCE_BINS = (12, 4, 4)
+#: fewer pixels than this above the hips: no appearance (a person at the frame's edge)
+APPEARANCE_MIN_PIXELS = 50
+#: weight of a frame's colours in the signer's kept ones (a running blend)
+APPEARANCE_RATE = 0.1
+#: largest share of the signer's pixels that others may claim for their colours to be blended
+APPEARANCE_OVERLAP = 0.05
+
+
+def appearance(image: np.ndarray, region: np.ndarray, hip_y: float) -> np.ndarray | None:
+    """A person's colours: the float32 histogram (:data:`APPEARANCE_BINS`, summing to 1) of
+    the RGB ``image``'s hue, saturation and value over the bool ``region`` above the row
+    ``hip_y`` (the clothes and head, not the legs, which others' often resemble); None when
+    fewer than :data:`APPEARANCE_MIN_PIXELS` pixels are there."""
+    top = region.copy()
+    top[max(int(np.ceil(hip_y)), 0):] = False
+    if int(top.sum()) < APPEARANCE_MIN_PIXELS:
+        return None
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hist = cv2.calcHist([hsv], [0, 1, 2], top.astype(np.uint8), list(APPEARANCE_BINS),
+                        [0, 180, 0, 256, 0, 256])
+    return (hist / hist.sum()).astype(np.float32)
+
+
+def appearance_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Bhattacharyya distance of two :func:`appearance` histograms: 0 same, 1 disjoint."""
+    return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
+
+
+def appearance_switch(signer: float, others: list[float], margin: float,
+                      max_distance: float) -> int | None:
+    """Index into ``others`` of the person to take instead of the chosen one, given each
+    one's appearance distance to the signer's kept colours (NaN: not measured), or None: the
+    best-matching other, if it matches better than the chosen person by more than ``margin``
+    and is within ``max_distance`` itself. A chosen person whose colours were not measured
+    (too little of them above the hips) is kept: nothing speaks against them."""
+    d = np.asarray(others, dtype=np.float64)
+    if np.isnan(signer) or not d.size or np.isnan(d).all():
+        return None
+    best = int(np.nanargmin(d))
+    return best if d[best] + margin < signer and d[best] <= max_distance else None
+
+
 # Columns of a persons row (the ``persons`` table adds scene, view, frame).
 PERSON_COLUMNS = ("person", "score", "hip_x", "hip_y", "scale_x", "scale_y", "head_x0",
-                  "head_y0", "head_x1", "head_y1", "chosen", "chosen_by")
+                  "head_y0", "head_x1", "head_y1", "appearance", "chosen", "chosen_by")
 
 
 class SignerMasking:
@@ -173,7 +229,8 @@ class SignerMasking:
     in the region its landmarks gave in the last frame (auxiliary points 33, 34); while it
     still finds a pose there, that is the signer ('tracked'; the detection whose mid-hip point
     is within a quarter body of it, if any, is marked). Otherwise :class:`SignerSelector`
-    chooses among the detections (head-box tracking, then the rule)."""
+    chooses among the detections (head-box tracking, then the rule). Either choice is then
+    checked against the signer's kept colours (:func:`appearance_switch`)."""
 
     max_people = 4  # the signer's neighbours whose regions are cut out of the signer's
 
@@ -185,20 +242,21 @@ class SignerMasking:
         self.rule = rule
         self._view = None
         self.prev: tuple[np.ndarray, np.ndarray] | None = None  # last (hip, scale point)
+        self.colours: np.ndarray | None = None  # the signer's kept appearance
 
     def __call__(self, image: np.ndarray, alpha: np.ndarray,
                  view: int) -> tuple[np.ndarray, list[dict]]:
         """(restricted alpha, one row per detected person) for one frame."""
         if view != self._view:
             self.selector.reset()
-            self.prev = None
+            self.prev, self.colours = None, None
             self._view = view
         h, w = image.shape[:2]
         det = self.model.detect_persons(image)
         min_presence = self.model.spec.min_pose_presence
         rows = [dict(zip(PERSON_COLUMNS, (
             j, float(det.scores[j]), *det.keypoints[j, 0], *det.keypoints[j, 1],
-            *det.boxes[j], False, ""), strict=True)) for j in range(len(det))]
+            *det.boxes[j], np.nan, False, ""), strict=True)) for j in range(len(det))]
         chosen, how, signer = None, "", None
         if self.prev is not None:
             pose = self.model.pose(image, self.model.person_roi(*self.prev))
@@ -212,7 +270,7 @@ class SignerMasking:
                 else:  # the pose model still sees the signer; the detector missed them
                     chosen = len(rows)
                     rows.append(dict(zip(PERSON_COLUMNS, (
-                        chosen, np.nan, *hip, *scale, *[np.nan] * 4, False, ""), strict=True)))
+                        chosen, np.nan, *hip, *scale, *[np.nan] * 5, False, ""), strict=True)))
                 how, signer = "tracked", (pose, hip, scale)
         if signer is None:
             chosen, how = self.selector.choose(det, (w, h))
@@ -225,16 +283,55 @@ class SignerMasking:
             self.prev = None
             return np.zeros_like(alpha), rows
         pose, hip, scale = signer
-        rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
-        self.prev = (pose.points[33], pose.points[34])
-        others = []
+        prob = person_probability(pose.segmentation, pose.roi, (h, w))
+        others = []  # (row, pose, probability) of the people around the signer
         for j in range(min(len(det), self.max_people)):
             if j == chosen:
                 continue
             other = self.model.pose(image, self.model.person_roi(*det.keypoints[j, :2]))
             if other.presence >= min_presence:
-                others.append(person_probability(other.segmentation, other.roi, (h, w)))
+                others.append((j, other, person_probability(other.segmentation, other.roi,
+                                                            (h, w))))
+        if self.rule.appearance_margin is not None:
+            k = self._check_identity(image, rows, chosen, prob, pose, others)
+            if k is not None:  # another person wears the signer's colours: take them
+                j, new_pose, new_prob = others[k]
+                others[k] = (chosen, pose, prob)
+                chosen, pose, prob, how = j, new_pose, new_prob, "appearance"
+                hip, scale = det.keypoints[j, 0], det.keypoints[j, 1]
+                self.selector.keep(det.boxes[j])
+        rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
+        self.prev = (pose.points[33], pose.points[34])
         body = 2.0 * float(np.linalg.norm(scale - hip))
-        region = person_mask(person_probability(pose.segmentation, pose.roi, (h, w)), others,
-                             body, self.rule.margin)
+        region = person_mask(prob, [o[2] for o in others], body, self.rule.margin)
         return alpha * region, rows
+
+    def _check_identity(self, image, rows, chosen, prob, pose, others) -> int | None:
+        """Index into ``others`` of the person to take instead of the chosen one, or None,
+        from everyone's colours against the signer's kept ones (written to the rows' column
+        ``appearance``). The signer's colours of this frame are blended into the kept ones
+        where nobody else claims more than :data:`APPEARANCE_OVERLAP` of their region."""
+        def colours(pr, ps):
+            return appearance(image, pr > 0.5, float(ps.points[33, 1]))
+
+        people = [(chosen, pose, prob), *others]
+        seen = [colours(pr, ps) for _, ps, pr in people]
+        k = None
+        if self.colours is not None:
+            dist = [np.nan if c is None else appearance_distance(self.colours, c) for c in seen]
+            for (row, _, _), d in zip(people, dist):
+                rows[row]["appearance"] = d
+            k = appearance_switch(dist[0], dist[1:], self.rule.appearance_margin,
+                                  self.rule.appearance_max)
+        signer = 0 if k is None else k + 1
+        if seen[signer] is not None:
+            region = people[signer][2] > 0.5
+            claimed = np.zeros_like(region)
+            for i, (_, _, pr) in enumerate(people):
+                if i != signer:
+                    claimed |= (pr > 0.5) & region
+            if claimed.sum() <= APPEARANCE_OVERLAP * region.sum():
+                mine = seen[signer]
+                self.colours = mine if self.colours is None else \
+                    (1 - APPEARANCE_RATE) * self.colours + APPEARANCE_RATE * mine
+        return k
