@@ -195,6 +195,12 @@ def footage_section(res: Results, assets: Assets) -> Section:
         seg = bench_seconds(res.benchmarks, "segment", name)
         kps = bench_seconds(res.benchmarks, "detect_keypoints", name)
         total = sum(s for s in (secs, seg, kps) if s is not None) or None
+        if t.persons is not None and len(t.persons):
+            path = plots.signer_track(t.persons, assets.path(f"{name}_signer_track"), name)
+            sec.figures.append(Figure(assets.rel(path), f"{name}: who was taken as the signer "
+                                      "(mid-hip x of every detected person, grey; the signer's "
+                                      "by how they were taken); a jump of the line onto "
+                                      "another track is a change of person", seg, "segment"))
         for img in t.footage_overlays:
             sec.figures.append(Figure(assets.copy(img), f"{name}: frame {img.stem}", total,
                                       "segment + detect_keypoints + perception_quality "

@@ -200,3 +200,28 @@ def training_curves(logs: dict[str, pd.DataFrame], path: Path) -> Path:
     if logs:
         ax.legend(fontsize=7)
     return _save(fig, path)
+
+
+def signer_track(persons: pd.DataFrame, path: Path, title: str = "") -> Path:
+    """Who was taken as the signer, frame by frame: every detected person's mid-hip x (grey)
+    and the chosen one's, coloured by how they were taken (a ``persons`` table). One panel
+    per view; a jump of the coloured line onto another grey track is a change of person."""
+    views = sorted(persons["view"].unique()) or [0]
+    fig, axes = plt.subplots(len(views), 1, figsize=(8, 2.6 * len(views) + 0.6),
+                             squeeze=False, sharex=True)
+    colours = {"tracked": "tab:blue", "appearance": "tab:red"}
+    for ax, view in zip(axes[:, 0], views):
+        p = persons[persons["view"] == view]
+        ax.scatter(p["frame"], p["hip_x"], s=4, color="0.7", label="detected people")
+        c = p[p["chosen"]].sort_values("frame")
+        ax.plot(c["frame"], c["hip_x"], color="0.3", lw=0.6)
+        for how, g in c.groupby("chosen_by"):
+            ax.scatter(g["frame"], g["hip_x"], s=7, color=colours.get(how, "tab:green"),
+                       label=f"signer: {how}")
+        ax.set_ylabel(f"view {view}: mid-hip x (px)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best", markerscale=2)
+    axes[-1, 0].set_xlabel("frame")
+    if title:
+        axes[0, 0].set_title(title)
+    return _save(fig, path)

@@ -281,6 +281,8 @@ def test_footage_section_shows_rates_reprojection_and_heldout_scores(tmp_path):
     assert float(rows["avatar demo: held-out psnr (masked)"]) == 21.0  # 24 dB minus 3
     assert float(rows["avatar demo: training seconds"]) == 895.0
     assert re.search(r'class="secs">[0-9.]+ s<', section)
+    track = re.search(r'src="(assets/[0-9a-f]*_?clip_signer_track.png)"', section)
+    assert track and (tmp_path / "rep" / track.group(1)).stat().st_size > 1000
 
 
 def test_fronts_before_and_after_are_each_code_s_own_and_shown_in_the_sweep_section(
