@@ -215,9 +215,10 @@ def signer_track(persons: pd.DataFrame, path: Path, title: str = "") -> Path:
         ax.scatter(p["frame"], p["hip_x"], s=4, color="0.7", label="detected people")
         c = p[p["chosen"]].sort_values("frame")
         ax.plot(c["frame"], c["hip_x"], color="0.3", lw=0.6)
-        for how, g in c.groupby("chosen_by"):
-            ax.scatter(g["frame"], g["hip_x"], s=7, color=colours.get(how, "tab:green"),
-                       label=f"signer: {how}")
+        for how, g in sorted(c.groupby("chosen_by"), key=lambda hg: -len(hg[1])):
+            # the rare choices (the rule's, the colours') drawn large, over the tracked ones
+            ax.scatter(g["frame"], g["hip_x"], s=7 if how == "tracked" else 30, zorder=3,
+                       color=colours.get(how, "tab:green"), label=f"signer: {how} ({len(g)})")
         ax.set_ylabel(f"view {view}: mid-hip x (px)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="best", markerscale=2)
