@@ -235,8 +235,8 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     ``spec`` chooses the keypointer (:func:`open_keypointer`). A frame whose mask is empty
     (fewer than ``min_area`` pixels) gets score 0 and NaN x, y; the SimCC models take the
     mask's box as the person box, the pretrained keypointer the signer the segment stage
-    chose (``persons_path``, table ``persons``) when given. Writes ``out_path`` (table
-    ``keypoints``, one row per keypoint, scores in [0, 1]).
+    chose, and where the others stood (``persons_path``, table ``persons``) when given.
+    Writes ``out_path`` (table ``keypoints``, one row per keypoint, scores in [0, 1]).
     """
     t_start = time.perf_counter()
     frames_path = Path(frames_path)
@@ -250,12 +250,14 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
     frames = frames[frames["_merge"] == "both"].reset_index(drop=True)
     kp = open_keypointer(spec, threads, min_area)
     k = kp.num_keypoints
-    chosen = {}
+    chosen = {}  # (view, frame) -> the signer's (hip, size point), then the others'
     if persons_path is not None:
         ppl = read_table(persons_path, "persons")
-        for _, r in ppl[ppl["chosen"]].iterrows():
-            chosen[(int(r["view"]), int(r["frame"]))] = np.array(
-                [[r["hip_x"], r["hip_y"]], [r["scale_x"], r["scale_y"]]], np.float64)
+        for (view, frame), g in ppl.groupby(["view", "frame"]):
+            if g["chosen"].any():
+                g = g.sort_values("chosen", ascending=False, kind="stable")
+                chosen[(int(view), int(frame))] = g[["hip_x", "hip_y", "scale_x", "scale_y"]
+                                                    ].to_numpy(np.float64).reshape(-1, 2, 2)
     t = {"load": time.perf_counter() - t_start, "read": 0.0, "model": 0.0, "write": 0.0}
     keys, xys, scs = [], [], []
     for chunk, images, good in _readable_batches(frames, frames_path.parent, kp.batch_size,

@@ -326,19 +326,21 @@ def test_stages_take_one_signer_of_two(tmp_path, signer, side):
     assert (body["x"] < 256).all() if side == "left" else (body["x"] > 256).all()
 
 
-def _signer_by_frame(frames, rule: dict) -> list[dict]:
-    """The chosen person's row of each frame (an empty dict where nobody is chosen) from
-    :class:`SignerMasking` with ``rule`` over the rest of the signer section's defaults."""
+def _people_by_frame(frames, rule: dict) -> list[list[dict]]:
+    """Each frame's persons rows from :class:`SignerMasking` with ``rule`` over the rest of the
+    signer section's defaults."""
     from signsplat.perception.detectors import pretrained_specs
     from signsplat.perception.pretrained.select import SignerMasking, SignerRule
 
     _, kp = pretrained_specs(_fast_cfg())
     masking = SignerMasking(kp, SignerRule.from_config({**CFG["signer"], **rule}), 1)
-    chosen = []
-    for image in frames:
-        _, rows = masking(image, np.ones(image.shape[:2], np.float32), 0)
-        chosen.append(next((r for r in rows if r["chosen"]), {}))
-    return chosen
+    return [masking(image, np.ones(image.shape[:2], np.float32), 0)[1] for image in frames]
+
+
+def _signer_by_frame(frames, rule: dict) -> list[dict]:
+    """The chosen person's row of each frame (an empty dict where nobody is chosen)."""
+    return [next((r for r in rows if r["chosen"]), {})
+            for rows in _people_by_frame(frames, rule)]
 
 
 def test_signer_is_known_by_colour_when_two_people_change_places():
@@ -365,15 +367,41 @@ def test_signer_stays_the_man_in_the_suit_where_the_men_cross():
     config/footage.tsv) walks left past the man in the black shirt, who comes out from behind
     him at about frame 290. The pose model's region, tracked from the frame before, slides
     onto the other man at frame 295 (without the colour check he is the signer from there
-    on, at x 288-295); by his colours the man in the suit stays the signer, at x 150-155."""
+    on, at x 288-295); by his colours the man in the suit stays the signer, at x 150-155.
+    The keypoint stage, given where everyone stands, takes no other man's pose."""
     from signsplat.io.video import iter_frames
 
+    from signsplat.perception.pretrained.keypointer import POSE_HIPS
+
     frames = [image for _, image in iter_frames(CLIP, 200, 300, size=(384, 256))]
-    chosen = _signer_by_frame(frames, {"rule": "box", "box": [213, 14, 150, 242]})
+    people = _people_by_frame(frames, {"rule": "box", "box": [213, 14, 150, 242]})
+    chosen = [next((r for r in rows if r["chosen"]), {}) for rows in people]
     hips = np.array([r.get("hip_x", np.nan) for r in chosen])
     assert np.isfinite(hips).all(), hips
     assert (hips[90:] < 200).all(), hips[90:]
     assert "appearance" in [r["chosen_by"] for r in chosen[90:]]
+    # The keypoint stage's pose of frames 280-299, each from the signer's own region (no
+    # tracking from the frame before): where the men overlap the pose model finds the other
+    # man there (given only the signer, some poses lie nearest another person); given the
+    # others too, those poses are not taken and every pose it gives is nearest the signer.
+    keypointer = MediaPipeWholeBody(spec(), threads=1)
+
+    def nearest(given: int | None) -> list[int]:
+        """Per frame the index of the person nearest the pose's mid-hip point (-1: none)."""
+        out = []
+        for image, rows in zip(frames[80:], people[80:]):
+            rows = sorted(rows, key=lambda r: not r["chosen"])
+            person = np.array([[[r["hip_x"], r["hip_y"]], [r["scale_x"], r["scale_y"]]]
+                               for r in rows])
+            keypointer.reset()
+            res, _ = keypointer.detect_one(image, person[:given])
+            out.append(-1 if res is None else int(np.linalg.norm(
+                person[:, 0] - res.pose[list(POSE_HIPS)].mean(0), axis=1).argmin()))
+        return out
+
+    blind, checked = nearest(1), nearest(None)
+    assert any(i > 0 for i in blind), blind
+    assert all(i <= 0 for i in checked) and checked.count(0) >= 12, checked
 
 
 def test_no_person_in_any_frame_names_the_input_and_frames(tmp_path):

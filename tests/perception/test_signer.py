@@ -132,3 +132,16 @@ def test_appearance_switch_needs_a_clearly_better_match():
     assert appearance_switch(np.nan, [0.1], 0.2, 0.5) is None  # nothing against the chosen
     assert appearance_switch(0.7, [], 0.2, 0.5) is None
     assert appearance_switch(0.7, [np.nan], 0.2, 0.5) is None
+
+
+def test_a_pose_nearer_another_person_is_not_the_signers():
+    from signsplat.perception.pretrained.keypointer import pose_is_signers
+
+    signer, others = (100.0, 200.0), np.array([[160.0, 200.0], [40.0, 210.0]])
+    assert pose_is_signers((110, 195), signer, others)
+    assert not pose_is_signers((150, 200), signer, others)  # the first other's
+    assert not pose_is_signers((60, 205), signer, others)  # the second other's
+    assert pose_is_signers((150, 200), signer, np.zeros((0, 2)))  # nobody else: kept
+    assert pose_is_signers((150, 200), signer, None)
+    assert pose_is_signers((110, 195), signer, [[np.nan, np.nan]])  # unknown: ignored
+    assert not pose_is_signers((np.nan, 195), signer, others)

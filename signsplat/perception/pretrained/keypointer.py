@@ -60,6 +60,7 @@ from signsplat.perception.pretrained.graphs import (
 )
 from signsplat.perception.still_hands import drop_still_hands
 from signsplat.perception.pretrained.wholebody import (
+    BLAZEPOSE_NAMES,
     POSE_ELBOW,
     POSE_FACE_POINTS,
     POSE_HAND_POINTS,
@@ -72,6 +73,7 @@ from signsplat.perception.pretrained.wholebody import (
 )
 
 NMS_IOU = 0.3
+POSE_HIPS = (BLAZEPOSE_NAMES.index("left_hip"), BLAZEPOSE_NAMES.index("right_hip"))
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,7 @@ class FrameDebug:
     persons: mp.Detections | None = None
     pose_roi: mp.Roi | None = None
     tracked: bool = False
+    not_signer: int = 0  # poses found but not taken: nearer another person than the signer
     hand_rois: dict = field(default_factory=dict)
     hands_tracked: set = field(default_factory=set)
     hands_from_palm: set = field(default_factory=set)
@@ -157,6 +160,17 @@ def tracked_hand_kept(hand_wrist, pose_wrist, pose_elbow, wrist_visibility: floa
     forearm = float(np.linalg.norm(np.subtract(pose_wrist, pose_elbow)))
     gap = float(np.linalg.norm(np.subtract(hand_wrist, pose_wrist)))
     return bool(np.isfinite(gap)) and gap <= reach * forearm
+
+
+def pose_is_signers(hip, signer_hip, others) -> bool:
+    """Whether a pose whose mid-hip point is ``hip`` is the signer's, whom the segment stage
+    chose at ``signer_hip``: no other detected person's mid-hip point (``others``, (M, 2);
+    non-finite rows ignored) lies nearer to it. Where two people overlap, the pose model in
+    the signer's region can return the other person's pose."""
+    gap = float(np.linalg.norm(np.subtract(hip, signer_hip)))
+    others = np.asarray(others if others is not None else [], np.float64).reshape(-1, 2)
+    near = np.linalg.norm(others[np.isfinite(others).all(axis=1)] - np.asarray(hip), axis=1)
+    return bool(np.isfinite(gap)) and bool((near >= gap).all())
 
 
 class MediaPipeWholeBody:
@@ -293,27 +307,41 @@ class MediaPipeWholeBody:
         """Landmarks of one person in an RGB uint8 frame, or None when there is none.
 
         ``person``: the signer's mid-hip and full-body size points (2, 2) from the segment
-        stage's choice; without it the detector's best-scored person. The ROI tracked from
-        the last frame is used instead when its centre lies within a quarter of the person's
-        body size of the person's mid-hip point (always, without ``person``)."""
+        stage's choice, optionally followed by the other detected people's ((1 + M, 2, 2));
+        without it the detector's best-scored person. The ROI tracked from the last frame is
+        tried first when its centre lies within a quarter of the person's body size of the
+        person's mid-hip point (always, without ``person``), then the person's own ROI. With
+        other people given, a pose nearer to one of them than to the signer is not taken
+        (:func:`pose_is_signers`): the frame then has no keypoints rather than another
+        person's."""
         s = self.spec
         dbg = FrameDebug()
-        result = None
-        start = None if person is None else self.person_roi(person[0], person[1])
+        start = others = None
+        if person is not None:
+            people = np.asarray(person, np.float64).reshape(-1, 2, 2)
+            start, others = self.person_roi(people[0, 0], people[0, 1]), people[1:, 0]
+        rois = []
         if s.track and self.prev_roi is not None and (
                 start is None or np.hypot(self.prev_roi.cx - start.cx,
                                           self.prev_roi.cy - start.cy) < start.w / 1.25 / 4):
-            dbg.tracked = True
-            result = self._pose_in(image, self.prev_roi, dbg)
-        if result is None:
-            dbg.tracked = False
-            if start is None:
-                dbg.persons = self.detect_persons(image)
-                if len(dbg.persons):
-                    kp = dbg.persons.keypoints[0]
-                    start = self.person_roi(kp[0], kp[1])
-            if start is not None:
-                result = self._pose_in(image, start, dbg)
+            rois.append((True, self.prev_roi))
+        if start is None and not rois:
+            dbg.persons = self.detect_persons(image)
+            if len(dbg.persons):
+                kp = dbg.persons.keypoints[0]
+                start = self.person_roi(kp[0], kp[1])
+        if start is not None:
+            rois.append((False, start))
+        result = None
+        for tracked, roi in rois:
+            dbg.tracked = tracked
+            result = self._pose_in(image, roi, dbg)
+            if result is not None and others is not None and not pose_is_signers(
+                    result.pose[list(POSE_HIPS)].mean(0), (start.cx, start.cy), others):
+                dbg.not_signer += 1
+                result = None
+            if result is not None:
+                break
         if result is None:
             self.prev_roi = None
             self.prev_hands = {}
@@ -394,10 +422,12 @@ class MediaPipeKeypointer:
         self.model = MediaPipeWholeBody(spec, threads)
         self.path = str(spec.cache)
         self._view = None
+        self.not_signer = 0  # frames left without keypoints: the pose was another person's
 
     def detect(self, images: list, boxes: list, views: list[int], persons: list | None = None):
-        """Keypoints per frame; ``persons`` (per frame the chosen signer's (2, 2) mid-hip and
-        size points, or None) come from the segment stage's persons table."""
+        """Keypoints per frame; ``persons`` (per frame the chosen signer's mid-hip and size
+        points, then the other detected people's, (1 + M, 2, 2), or None) come from the segment
+        stage's persons table."""
         n = len(images)
         xy = np.full((n, NUM_KEYPOINTS, 2), np.nan, np.float32)
         sc = np.zeros((n, NUM_KEYPOINTS), np.float32)
@@ -408,7 +438,9 @@ class MediaPipeKeypointer:
                 self._view = view
             if box is None:
                 continue
-            xy[i], sc[i] = self.model.detect(image, persons[i])
+            result, dbg = self.model.detect_one(image, persons[i])
+            self.not_signer += result is None and dbg.not_signer > 0
+            xy[i], sc[i] = to_coco_wholebody(result, self.model.spec.min_score)
         return xy, sc
 
     def finish(self, frames: np.ndarray, xy: np.ndarray, sc: np.ndarray
@@ -420,5 +452,9 @@ class MediaPipeKeypointer:
                                 min_score=s.min_hand_presence, trust=s.hand_track_trust)
 
     def summary(self) -> str:
-        """Nothing beyond ``finish``'s per-view counts for the stage's log."""
-        return ""
+        """Frames left without keypoints because the only pose found was another person's
+        (beside ``finish``'s per-view counts), for the stage's log."""
+        if not self.not_signer:
+            return ""
+        return (f"{self.not_signer} frame(s) without keypoints: the pose found in the signer's "
+                "region was nearer another person (people overlapping)")
