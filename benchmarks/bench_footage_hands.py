@@ -20,14 +20,13 @@ Rows per hand:
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import yaml
+from footage_table import publish
 
-from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_rgb
 from signsplat.io.tables import read_table
 from signsplat.perception.quality import hand_found, hand_visible, keypoint_arrays
@@ -80,12 +79,7 @@ def main() -> None:
     h, w = read_rgb(seq / "frames" / frames["image"].iloc[0]).shape[:2]
     xy, sc = keypoint_arrays(kp, frames)
     df = pd.DataFrame(hand_rows(xy, sc, (w, h), note["visible"], a.min_score))
-    df.insert(0, "sequence", a.sequence)
-    df["date"] = dt.date.today().isoformat()
-    print(df.to_string(index=False))
-    with atomic_path(a.out) as tmp:
-        df.to_parquet(tmp, index=False)
-    print(f"wrote {a.out}")
+    publish(df, a.sequence, a.out)
 
 
 if __name__ == "__main__":

@@ -17,13 +17,12 @@ persons.parquet``). One row per judged frame range, and a row ``all``:
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 from pathlib import Path
 
 import pandas as pd
 import yaml
+from footage_table import publish
 
-from signsplat.io.atomic import atomic_path
 from signsplat.io.tables import read_table
 from signsplat.perception import tables as _tables  # noqa: F401  (registers "persons")
 
@@ -62,13 +61,7 @@ def main() -> None:
         raise SystemExit(f"{seq / 'perception' / 'persons.parquet'}: {persons['view'].nunique()}"
                          f" view(s), frames up to {persons['frame'].max()}; {ANNOTATION} "
                          f"annotates one view of {note['frames']} frames")
-    df = judge(persons, note["hip_x"])
-    df.insert(0, "sequence", a.sequence)
-    df["date"] = dt.date.today().isoformat()
-    print(df.to_string(index=False))
-    with atomic_path(a.out) as tmp:
-        df.to_parquet(tmp, index=False)
-    print(f"wrote {a.out}")
+    publish(judge(persons, note["hip_x"]), a.sequence, a.out)
 
 
 if __name__ == "__main__":
