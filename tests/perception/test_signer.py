@@ -119,6 +119,7 @@ def test_appearance_tells_people_apart_by_their_clothes_above_the_hips():
     image, region = _person(navy, jeans)
     assert appearance(image, region, hip_y=11) is None
     assert appearance(image, region, hip_y=-5) is None
+    assert appearance(image, region, hip_y=float("nan")) is None  # a pose without hips
 
 
 def test_appearance_switch_needs_a_clearly_better_match():

@@ -185,7 +185,9 @@ def appearance(image: np.ndarray, region: np.ndarray, hip_y: float) -> np.ndarra
     """A person's colours: the float32 histogram (:data:`APPEARANCE_BINS`, summing to 1) of
     the RGB ``image``'s hue, saturation and value over the bool ``region`` above the row
     ``hip_y`` (the clothes and head, not the legs, which others' often resemble); None when
-    fewer than :data:`APPEARANCE_MIN_PIXELS` pixels are there."""
+    fewer than :data:`APPEARANCE_MIN_PIXELS` pixels are there, or no hip row is known."""
+    if not np.isfinite(hip_y):
+        return None
     top = region.copy()
     top[max(int(np.ceil(hip_y)), 0):] = False
     if int(top.sum()) < APPEARANCE_MIN_PIXELS:
