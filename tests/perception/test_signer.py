@@ -4,6 +4,7 @@ signer. No model needed."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -90,14 +91,14 @@ def test_mask_is_cut_to_the_signer():
 
 
 def _person(colour_top, colour_legs, shape=(120, 80)) -> tuple[np.ndarray, np.ndarray]:
-    """An RGB image and the person's region: a body of one colour above row 60 and another
-    below it, on grey."""
+    """An HSV image (OpenCV's, from RGB) and the person's region: a body of one RGB colour
+    above row 60 and another below it, on grey."""
     image = np.full((*shape, 3), 128, np.uint8)
     region = np.zeros(shape, bool)
     region[10:110, 20:60] = True
     image[10:60, 20:60] = colour_top
     image[60:110, 20:60] = colour_legs
-    return image, region
+    return cv2.cvtColor(image, cv2.COLOR_RGB2HSV), region
 
 
 def test_appearance_tells_people_apart_by_their_clothes_above_the_hips():
@@ -112,7 +113,7 @@ def test_appearance_tells_people_apart_by_their_clothes_above_the_hips():
     assert appearance_distance(suit, appearance(*_person(black, jeans), hip_y=60)) > 0.9
     # half navy, half white on top: in between
     image, region = _person(navy, jeans)
-    image[10:60, 40:60] = white
+    image[10:60, 40:60] = cv2.cvtColor(np.array([[white]], np.uint8), cv2.COLOR_RGB2HSV)[0, 0]
     half = appearance_distance(suit, appearance(image, region, hip_y=60))
     assert 0.2 < half < 0.9
     # too little of them above the hips (or a hip above the frame): nothing to compare

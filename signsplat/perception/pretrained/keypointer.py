@@ -316,10 +316,11 @@ class MediaPipeWholeBody:
         person's."""
         s = self.spec
         dbg = FrameDebug()
-        start = others = None
+        start = signer_hip = others = None
         if person is not None:
             people = np.asarray(person, np.float64).reshape(-1, 2, 2)
-            start, others = self.person_roi(people[0, 0], people[0, 1]), people[1:, 0]
+            start = self.person_roi(people[0, 0], people[0, 1])
+            signer_hip, others = people[0, 0], people[1:, 0]
         rois = []
         if s.track and self.prev_roi is not None and (
                 start is None or np.hypot(self.prev_roi.cx - start.cx,
@@ -337,7 +338,7 @@ class MediaPipeWholeBody:
             dbg.tracked = tracked
             result = self._pose_in(image, roi, dbg)
             if result is not None and others is not None and not pose_is_signers(
-                    result.pose[list(POSE_HIPS)].mean(0), (start.cx, start.cy), others):
+                    result.pose[list(POSE_HIPS)].mean(0), signer_hip, others):
                 dbg.not_signer += 1
                 result = None
             if result is not None:

@@ -181,9 +181,10 @@ APPEARANCE_RATE = 0.1
 APPEARANCE_OVERLAP = 0.05
 
 
-def appearance(image: np.ndarray, region: np.ndarray, hip_y: float) -> np.ndarray | None:
+def appearance(hsv: np.ndarray, region: np.ndarray, hip_y: float) -> np.ndarray | None:
     """A person's colours: the float32 histogram (:data:`APPEARANCE_BINS`, summing to 1) of
-    the RGB ``image``'s hue, saturation and value over the bool ``region`` above the row
+    a frame's hue, saturation and value (``hsv``: OpenCV's RGB2HSV of the frame, converted
+    once for everyone in it) over the bool ``region`` above the row
     ``hip_y`` (the clothes and head, not the legs, which others' often resemble); None when
     fewer than :data:`APPEARANCE_MIN_PIXELS` pixels are there, or no hip row is known."""
     if not np.isfinite(hip_y):
@@ -192,7 +193,6 @@ def appearance(image: np.ndarray, region: np.ndarray, hip_y: float) -> np.ndarra
     top[max(int(np.ceil(hip_y)), 0):] = False
     if int(top.sum()) < APPEARANCE_MIN_PIXELS:
         return None
-    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
     hist = cv2.calcHist([hsv], [0, 1, 2], top.astype(np.uint8), list(APPEARANCE_BINS),
                         [0, 180, 0, 256, 0, 256])
     return (hist / hist.sum()).astype(np.float32)
@@ -313,8 +313,10 @@ class SignerMasking:
         from everyone's colours against the signer's kept ones (written to the rows' column
         ``appearance``). The signer's colours of this frame are blended into the kept ones
         where nobody else claims more than :data:`APPEARANCE_OVERLAP` of their region."""
+        hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+
         def colours(pr, ps):
-            return appearance(image, pr > 0.5, float(ps.points[33, 1]))
+            return appearance(hsv, pr > 0.5, float(ps.points[33, 1]))
 
         people = [(chosen, pose, prob), *others]
         seen = [colours(pr, ps) for _, ps, pr in people]
