@@ -30,8 +30,11 @@ PERSONS_TABLE = register_table(Table(
         "scene": "str sequence name",
         "view": "int32 camera index",
         "frame": "int32 frame index",
-        "person": "int16 detection index in the frame (best score first)",
-        "score": "float32 detector score in [0, 1]",
+        "person": "int16 index in the frame: the detections at pretrained.keypoints."
+                  "min_detection_score (best score first), then the signer where only the pose "
+                  "model's tracking found them, then the neighbours scored from "
+                  "perception.signer.others_min_score (cut out of the signer's mask)",
+        "score": "float32 detector score in [0, 1]; NaN for a signer only tracking found",
         "hip_x": "float32 mid-hip point x in pixels (the body region's centre)",
         "hip_y": "float32 mid-hip point y in pixels",
         "scale_x": "float32 full-body size/rotation point x in pixels",
@@ -51,7 +54,7 @@ PERSONS_TABLE = register_table(Table(
                      "chosen",
     },
     metadata={"rule": "the signer rule as JSON (rule, box, track_iou, margin, patience, "
-                      "appearance_margin, appearance_max)"},
+                      "appearance_margin, appearance_max, others_min_score)"},
 ))
 
 EVAL_TABLE = register_table(Table(

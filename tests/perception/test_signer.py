@@ -12,7 +12,9 @@ from signsplat.config import validate
 from signsplat.perception.detectors import perception_for
 from signsplat.perception.pretrained import mediapipe as mp
 from signsplat.perception.pretrained.select import (SignerRule, SignerSelector, body_boxes,
-                                                    parse_signer, person_mask)
+                                                    parse_signer, person_mask,
+                                                    skeleton_distance)
+from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES
 
 CFG = validate({}, "stages/perception.schema.yaml")
 FRAME = (400, 200)
@@ -88,6 +90,62 @@ def test_mask_is_cut_to_the_signer():
     assert region[:, 13:41].all()  # the signer grown by 3 px on the free side ...
     assert not region[:, :13].any()
     assert not region[:, 41:].any()  # ... and not where the other one is more likely
+
+
+def _pose(x: float, arm_visible: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """BlazePose landmarks (39, 2) and visibility of an upright person centred on column x
+    (shoulders at row 20, hips at 50, ears at 8) whose left arm hangs out to x + 14."""
+    pts = np.full((39, 2), np.nan)
+    vis = np.ones(39)
+    for name, (dx, y) in {"nose": (0, 10), "left_ear": (4, 8), "right_ear": (-4, 8),
+                          "left_shoulder": (8, 20), "right_shoulder": (-8, 20),
+                          "left_hip": (6, 50), "right_hip": (-6, 50),
+                          "left_elbow": (12, 35), "left_wrist": (14, 48)}.items():
+        pts[BLAZEPOSE_NAMES.index(name)] = (x + dx, y)
+    if not arm_visible:
+        vis[[BLAZEPOSE_NAMES.index("left_elbow"), BLAZEPOSE_NAMES.index("left_wrist")]] = 0.1
+    return pts, vis
+
+
+def test_pixels_both_claim_go_to_the_nearer_skeleton():
+    """Two people the segmentation claims with certainty, overlapping in columns 36-44 (as the
+    pose model segments everyone in its crop): the columns nearer the other's skeleton leave
+    the signer's mask. With probabilities alone the tie keeps them all."""
+    h, w = 60, 100
+    _, xx = np.mgrid[:h, :w]
+    signer = np.where(np.abs(xx - 28) <= 16, 1.0, 0.0).astype(np.float32)  # columns 12-44
+    other = np.where(np.abs(xx - 52) <= 16, 1.0, 0.0).astype(np.float32)  # columns 36-68
+    bones = [skeleton_distance(*_pose(x, arm_visible=False), (h, w)) for x in (28, 52)]
+    region = person_mask(signer, [other], 100.0, 0.0, bones[0], [bones[1]])
+    assert region[25, 12:36].all()  # the signer's own columns
+    assert not region[25, 42:].any()  # nearer the other's torso (x 44-60) than the signer's
+    assert region[25, 36:41].all()  # the shared columns up to half way between the two
+    assert person_mask(signer, [other], 100.0, 0.0)[25, 12:45].all()  # the tie: all kept
+    # the signer's visible arm (x 40-42 at rows 35-48) reaches into the other's columns: kept
+    arm = skeleton_distance(*_pose(28), (h, w))
+    with_arm = person_mask(signer, [other], 100.0, 0.0, arm, [bones[1]])
+    assert with_arm[40, 40:43].all() and not region[40, 40:43].all()
+
+
+def test_another_pose_with_a_bone_across_the_signer_does_not_take_their_body():
+    """A confused pose of someone else (a bone 3 px from the signer's own, both segmented
+    with certainty everywhere) takes only what lies beyond OWN_REACH (5 px at body 100) of
+    the signer's skeleton."""
+    h, w = 60, 100
+    _, xx = np.mgrid[:h, :w]
+    ones = np.ones((h, w), np.float32)
+    signer_bones = np.abs(xx - 28).astype(np.float32)
+    other_bones = np.abs(xx - 31).astype(np.float32)
+    region = person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones])
+    assert region[:, :34].all() and not region[:, 34:].any()
+
+
+def test_skeleton_distance_without_usable_bones_is_infinite():
+    pts, vis = _pose(30)
+    assert np.isfinite(skeleton_distance(pts, vis, (60, 100))).all()
+    assert np.isinf(skeleton_distance(np.full((39, 2), np.nan), vis, (60, 100))).all()
+    far = skeleton_distance(pts + 1e9, vis, (60, 100))  # every bone far outside the frame
+    assert np.isinf(far).all()
 
 
 def _person(colour_top, colour_legs, shape=(120, 80)) -> tuple[np.ndarray, np.ndarray]:

@@ -204,20 +204,33 @@ class MediaPipeWholeBody:
 
     def _detect(self, model: dict, image: np.ndarray, roi: mp.Roi,
                 min_score: float) -> mp.Detections:
+        return self._detect_at(model, image, roi, (min_score,))[0]
+
+    def _detect_at(self, model: dict, image: np.ndarray, roi: mp.Roi,
+                   min_scores: tuple[float, ...]) -> list[mp.Detections]:
+        """One run of a detector, decoded once per score threshold (each with its own
+        suppression, so a threshold's detections do not depend on the others)."""
         (boxes, scores), roi = self._run(model, image, roi)
         size = model["size"]
-        det = mp.decode_detections(boxes[0], scores[0], self.anchors[model["name"]], size,
-                                   model["keypoints"], min_score)
-        return mp.project_detections(mp.weighted_nms(det, NMS_IOU), roi, (size, size))
+        out = []
+        for min_score in min_scores:
+            det = mp.decode_detections(boxes[0], scores[0], self.anchors[model["name"]], size,
+                                       model["keypoints"], min_score)
+            out.append(mp.project_detections(mp.weighted_nms(det, NMS_IOU), roi, (size, size)))
+        return out
 
     # --- stages ---------------------------------------------------------------------------
 
     def detect_persons(self, image: np.ndarray) -> mp.Detections:
         """Every person the pose detector finds in the whole frame (image pixels, best first);
         keypoints: mid-hip, full-body scale point, mid-shoulder, upper-body scale point."""
+        return self.detect_persons_at(image, (self.spec.min_detection_score,))[0]
+
+    def detect_persons_at(self, image: np.ndarray,
+                          min_scores: tuple[float, ...]) -> list[mp.Detections]:
+        """:meth:`detect_persons` at each of ``min_scores``, from one run of the detector."""
         h, w = image.shape[:2]
-        return self._detect(POSE_DET, image, mp.Roi(w / 2, h / 2, w, h),
-                            self.spec.min_detection_score)
+        return self._detect_at(POSE_DET, image, mp.Roi(w / 2, h / 2, w, h), min_scores)
 
     @staticmethod
     def person_roi(hip, scale_point) -> mp.Roi:

@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from signsplat.perception.pretrained import mediapipe as mp
+from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES
 
 RULES = ("largest", "central", "box")
 
@@ -52,6 +53,7 @@ class SignerRule:
     patience: int
     appearance_margin: float | None  # None: no identity check by colour
     appearance_max: float
+    others_min_score: float
 
     def __post_init__(self):
         if self.rule not in RULES:
@@ -66,7 +68,7 @@ class SignerRule:
         return cls(signer["rule"], tuple(float(v) for v in box) if box else None,
                    float(signer["track_iou"]), float(signer["margin"]),
                    int(signer["patience"]), None if margin is None else float(margin),
-                   float(signer["appearance_max"]))
+                   float(signer["appearance_max"]), float(signer["others_min_score"]))
 
 
 def parse_signer(text: str) -> dict:
@@ -155,19 +157,83 @@ def person_probability(seg_logits: np.ndarray, roi: mp.Roi,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
+def _bones(pairs) -> tuple[tuple[int, int], ...]:
+    return tuple((BLAZEPOSE_NAMES.index(a), BLAZEPOSE_NAMES.index(b)) for a, b in pairs)
+
+
+#: BlazePose's head and torso bones, drawn whatever their points' visibility (a torso is
+#: there even where the frame cuts off the hips)
+CORE_BONES = _bones((
+    ("left_ear", "right_ear"), ("nose", "left_ear"), ("nose", "right_ear"),
+    ("nose", "left_shoulder"), ("nose", "right_shoulder"), ("left_shoulder", "right_shoulder"),
+    ("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"), ("left_hip", "right_hip"),
+    ("left_shoulder", "right_hip"), ("right_shoulder", "left_hip")))
+#: BlazePose's limb bones, drawn where both their points are visible (an arm hidden behind
+#: someone else must not claim them)
+LIMB_BONES = _bones((f"{side}_{a}", f"{side}_{b}") for side in ("left", "right") for a, b in (
+    ("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "index"), ("wrist", "pinky"),
+    ("wrist", "thumb"), ("index", "pinky"), ("hip", "knee"), ("knee", "ankle"),
+    ("ankle", "heel"), ("heel", "foot_index"), ("ankle", "foot_index")))
+#: a limb bone is drawn when both its points' visibility is at least this
+BONE_VISIBILITY = 0.5
+
+
+def skeleton_distance(points: np.ndarray, visibility: np.ndarray,
+                      frame_hw: tuple[int, int]) -> np.ndarray:
+    """Float32 (H, W) distance in pixels to a pose's nearest bone (:data:`CORE_BONES`, and
+    :data:`LIMB_BONES` with visible ends) from its landmarks (>= 33, 2) in frame pixels and
+    their visibility; infinite everywhere when no bone has finite ends."""
+    canvas = np.full(frame_hw, 255, np.uint8)
+    drawn = 0
+    bones = list(CORE_BONES) + [(a, b) for a, b in LIMB_BONES
+                                if min(visibility[a], visibility[b]) >= BONE_VISIBILITY]
+    for a, b in bones:
+        ends = points[[a, b]]
+        if np.isfinite(ends).all():
+            pa, pb = np.clip(np.round(ends), -1e4, 1e4).astype(int)
+            cv2.line(canvas, tuple(map(int, pa)), tuple(map(int, pb)), 0, 1)
+            drawn += 1
+    if not drawn or canvas.all():  # no bone, or every bone outside the frame
+        return np.full(frame_hw, np.inf, np.float32)
+    return cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
+
+
+#: pixels this share of the signer's body size from their own skeleton stay theirs whoever
+#: else claims them (another person's pose, unsure where two people overlap, may put a bone
+#: across the signer)
+OWN_REACH = 0.05
+
+
 def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
-                margin: float) -> np.ndarray:
+                margin: float, chosen_bones: np.ndarray | None = None,
+                others_bones: list[np.ndarray] | None = None) -> np.ndarray:
     """Bool (H, W) region of the chosen person from per-person probabilities (H, W): where
-    the chosen person's is above 0.5, grown by ``margin * body_size`` pixels, minus the pixels
-    another person claims with a higher probability."""
+    the chosen person's is above 0.5, grown by ``margin * body_size`` pixels, minus what
+    another person claims.
+
+    Without skeletons, another person claims the pixels where their probability is above 0.5
+    and the chosen person's. With them (``*_bones``: :func:`skeleton_distance` maps), they
+    claim where theirs is above 0.5 and either the chosen person's is not or their skeleton is
+    the nearer one; that claim, grown by the same margin, also takes the pixels around it
+    that lie nearer their skeleton (the outline the chosen person's segmentation still
+    covers). The pose model segments everyone in its crop, so two people side by side often
+    both claim each other with certainty. Pixels within :data:`OWN_REACH` of the chosen
+    person's body size from their skeleton stay theirs."""
     region = (chosen > 0.5).astype(np.uint8)
     grow = int(round(margin * body_size))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     if grow > 0:
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-        region = cv2.dilate(region, k)
+        region = cv2.dilate(region, disk)
     keep = region.astype(bool)
-    for other in others:
-        keep &= ~((other > 0.5) & (other > chosen))
+    for i, other in enumerate(others):
+        if chosen_bones is None or others_bones is None:
+            keep &= ~((other > 0.5) & (other > chosen))
+            continue
+        theirs = (others_bones[i] < chosen_bones) & (chosen_bones > OWN_REACH * body_size)
+        claim = (other > 0.5) & ((chosen <= 0.5) | theirs)
+        if grow > 0:
+            claim |= cv2.dilate(claim.astype(np.uint8), disk).astype(bool) & theirs
+        keep &= ~claim
     return keep
 
 
@@ -217,6 +283,10 @@ def appearance_switch(signer: float, others: list[float], margin: float,
     return best if d[best] + margin < signer and d[best] <= max_distance else None
 
 
+#: two mid-hip points closer than this share of the signer's body size are one person's
+#: (people standing shoulder to shoulder are about a quarter apart)
+SAME_PERSON = 0.125
+
 # Columns of a persons row (the ``persons`` table adds scene, view, frame).
 PERSON_COLUMNS = ("person", "score", "hip_x", "hip_y", "scale_x", "scale_y", "head_x0",
                   "head_y0", "head_x1", "head_y1", "appearance", "chosen", "chosen_by")
@@ -254,8 +324,10 @@ class SignerMasking:
             self.prev, self.colours = None, None
             self._view = view
         h, w = image.shape[:2]
-        det = self.model.detect_persons(image)
         min_presence = self.model.spec.min_pose_presence
+        strong = self.model.spec.min_detection_score
+        det, weak = self.model.detect_persons_at(
+            image, (strong, min(strong, self.rule.others_min_score)))
         rows = [dict(zip(PERSON_COLUMNS, (
             j, float(det.scores[j]), *det.keypoints[j, 0], *det.keypoints[j, 1],
             *det.boxes[j], np.nan, False, ""), strict=True)) for j in range(len(det))]
@@ -294,8 +366,11 @@ class SignerMasking:
             if other.presence >= min_presence:
                 others.append((j, other, person_probability(other.segmentation, other.roi,
                                                             (h, w))))
+        candidates = len(others)  # the ones the colour check may take instead
+        others += self._weak_neighbours(image, rows, det, weak, pose, len(others))
         if self.rule.appearance_margin is not None:
-            k = self._check_identity(image, rows, chosen, prob, pose, others)
+            k = self._check_identity(image, rows, chosen, prob, pose, others[:candidates],
+                                     others[candidates:])
             if k is not None:  # another person wears the signer's colours: take them
                 j, new_pose, new_prob = others[k]
                 others[k] = (chosen, pose, prob)
@@ -305,27 +380,64 @@ class SignerMasking:
         rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
         self.prev = (pose.points[33], pose.points[34])
         body = 2.0 * float(np.linalg.norm(scale - hip))
-        region = person_mask(prob, [o[2] for o in others], body, self.rule.margin)
+        region = person_mask(prob, [o[2] for o in others], body, self.rule.margin,
+                             skeleton_distance(pose.points, pose.visibility, (h, w)),
+                             [skeleton_distance(o[1].points, o[1].visibility, (h, w))
+                              for o in others])
         return alpha * region, rows
 
-    def _check_identity(self, image, rows, chosen, prob, pose, others) -> int | None:
+    def _weak_neighbours(self, image, rows, det, weak, pose, have: int) -> list:
+        """(row, pose, probability) of the people the detector scored between
+        ``others_min_score`` and ``min_detection_score`` (neighbours close to the signer often
+        score so), for cutting them out of the signer's region; a row is added for each.
+        A detection within :data:`SAME_PERSON` of the signer's body from someone already known,
+        or whose pose is, is that person."""
+        min_presence = self.model.spec.min_pose_presence
+        hip, scale = pose.points[33], pose.points[34]
+        same = SAME_PERSON * 2.0 * float(np.linalg.norm(scale - hip))
+        known = [hip, *det.keypoints[:, 0]]  # the signer's and the detected people's hips
+        out = []
+
+        def known_near(point) -> bool:
+            return np.linalg.norm(np.asarray(known) - point, axis=1).min() < same
+
+        for j in range(len(weak)):
+            if have + len(out) >= self.max_people:
+                break
+            if known_near(weak.keypoints[j, 0]):
+                continue
+            other = self.model.pose(image, self.model.person_roi(*weak.keypoints[j, :2]))
+            if other.presence < min_presence or known_near(other.points[33]):
+                continue
+            known.append(other.points[33])
+            row = len(rows)
+            rows.append(dict(zip(PERSON_COLUMNS, (
+                row, float(weak.scores[j]), *weak.keypoints[j, 0], *weak.keypoints[j, 1],
+                *weak.boxes[j], np.nan, False, ""), strict=True)))
+            out.append((row, other, person_probability(other.segmentation, other.roi,
+                                                       image.shape[:2])))
+        return out
+
+    def _check_identity(self, image, rows, chosen, prob, pose, others,
+                        bystanders=()) -> int | None:
         """Index into ``others`` of the person to take instead of the chosen one, or None,
         from everyone's colours against the signer's kept ones (written to the rows' column
-        ``appearance``). The signer's colours of this frame are blended into the kept ones
-        where nobody else claims more than :data:`APPEARANCE_OVERLAP` of their region."""
+        ``appearance``; ``bystanders`` are measured too but never taken). The signer's colours
+        of this frame are blended into the kept ones where nobody else claims more than
+        :data:`APPEARANCE_OVERLAP` of their region."""
         hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
 
         def colours(pr, ps):
             return appearance(hsv, pr > 0.5, float(ps.points[33, 1]))
 
-        people = [(chosen, pose, prob), *others]
+        people = [(chosen, pose, prob), *others, *bystanders]
         seen = [colours(pr, ps) for _, ps, pr in people]
         k = None
         if self.colours is not None:
             dist = [np.nan if c is None else appearance_distance(self.colours, c) for c in seen]
             for (row, _, _), d in zip(people, dist):
                 rows[row]["appearance"] = d
-            k = appearance_switch(dist[0], dist[1:], self.rule.appearance_margin,
+            k = appearance_switch(dist[0], dist[1:1 + len(others)], self.rule.appearance_margin,
                                   self.rule.appearance_max)
         signer = 0 if k is None else k + 1
         if seen[signer] is not None:
