@@ -129,15 +129,15 @@ def test_pixels_both_claim_go_to_the_nearer_skeleton():
 
 def test_another_pose_with_a_bone_across_the_signer_does_not_take_their_body():
     """A confused pose of someone else (a bone 3 px from the signer's own, both segmented
-    with certainty everywhere) takes only what lies beyond OWN_REACH (5 px at body 100) of
-    the signer's skeleton."""
+    with certainty everywhere) takes only what lies beyond the signer's own reach (5 px)."""
     h, w = 60, 100
     _, xx = np.mgrid[:h, :w]
     ones = np.ones((h, w), np.float32)
     signer_bones = np.abs(xx - 28).astype(np.float32)
     other_bones = np.abs(xx - 31).astype(np.float32)
-    region = person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones])
+    region = person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones], own_reach=5.0)
     assert region[:, :34].all() and not region[:, 34:].any()
+    assert not person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones])[:, 30:].any()
 
 
 def test_skeleton_distance_without_usable_bones_is_infinite():

@@ -174,6 +174,7 @@ LIMB_BONES = _bones((f"{side}_{a}", f"{side}_{b}") for side in ("left", "right")
     ("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "index"), ("wrist", "pinky"),
     ("wrist", "thumb"), ("index", "pinky"), ("hip", "knee"), ("knee", "ankle"),
     ("ankle", "heel"), ("heel", "foot_index"), ("ankle", "foot_index")))
+SHOULDERS = (BLAZEPOSE_NAMES.index("left_shoulder"), BLAZEPOSE_NAMES.index("right_shoulder"))
 #: a limb bone is drawn when both its points' visibility is at least this
 BONE_VISIBILITY = 0.5
 
@@ -198,15 +199,22 @@ def skeleton_distance(points: np.ndarray, visibility: np.ndarray,
     return cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
 
 
-#: pixels this share of the signer's body size from their own skeleton stay theirs whoever
-#: else claims them (another person's pose, unsure where two people overlap, may put a bone
-#: across the signer)
-OWN_REACH = 0.05
+#: pixels this share of the signer's shoulder width from their own skeleton stay theirs
+#: whoever else claims them (another person's pose, unsure where two people overlap, may put
+#: a bone across the signer)
+OWN_REACH = 0.3
+
+
+def shoulder_width(points: np.ndarray) -> float:
+    """Pixels between a pose's shoulders (0 when either is not finite)."""
+    d = float(np.linalg.norm(points[SHOULDERS[0]] - points[SHOULDERS[1]]))
+    return d if np.isfinite(d) else 0.0
 
 
 def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
                 margin: float, chosen_bones: np.ndarray | None = None,
-                others_bones: list[np.ndarray] | None = None) -> np.ndarray:
+                others_bones: list[np.ndarray] | None = None,
+                own_reach: float = 0.0) -> np.ndarray:
     """Bool (H, W) region of the chosen person from per-person probabilities (H, W): where
     the chosen person's is above 0.5, grown by ``margin * body_size`` pixels, minus what
     another person claims.
@@ -217,8 +225,8 @@ def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
     the nearer one; that claim, grown by the same margin, also takes the pixels around it
     that lie nearer their skeleton (the outline the chosen person's segmentation still
     covers). The pose model segments everyone in its crop, so two people side by side often
-    both claim each other with certainty. Pixels within :data:`OWN_REACH` of the chosen
-    person's body size from their skeleton stay theirs."""
+    both claim each other with certainty. Pixels within ``own_reach`` pixels of the chosen
+    person's skeleton stay theirs."""
     region = (chosen > 0.5).astype(np.uint8)
     grow = int(round(margin * body_size))
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
@@ -229,7 +237,7 @@ def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
         if chosen_bones is None or others_bones is None:
             keep &= ~((other > 0.5) & (other > chosen))
             continue
-        theirs = (others_bones[i] < chosen_bones) & (chosen_bones > OWN_REACH * body_size)
+        theirs = (others_bones[i] < chosen_bones) & (chosen_bones > own_reach)
         claim = (other > 0.5) & ((chosen <= 0.5) | theirs)
         if grow > 0:
             claim |= cv2.dilate(claim.astype(np.uint8), disk).astype(bool) & theirs
@@ -383,7 +391,7 @@ class SignerMasking:
         region = person_mask(prob, [o[2] for o in others], body, self.rule.margin,
                              skeleton_distance(pose.points, pose.visibility, (h, w)),
                              [skeleton_distance(o[1].points, o[1].visibility, (h, w))
-                              for o in others])
+                              for o in others], OWN_REACH * shoulder_width(pose.points))
         return alpha * region, rows
 
     def _weak_neighbours(self, image, rows, det, weak, pose, have: int) -> list:
