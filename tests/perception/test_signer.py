@@ -11,9 +11,9 @@ import pytest
 from signsplat.config import validate
 from signsplat.perception.detectors import perception_for
 from signsplat.perception.pretrained import mediapipe as mp
-from signsplat.perception.pretrained.select import (SignerRule, SignerSelector, body_boxes,
-                                                    parse_signer, person_mask,
-                                                    skeleton_distance)
+from signsplat.perception.pretrained.select import (HEAD, SignerRule, SignerSelector,
+                                                    body_boxes, confused_pose, parse_signer,
+                                                    person_mask, skeleton_distance)
 from signsplat.perception.pretrained.wholebody import BLAZEPOSE_NAMES
 
 CFG = validate({}, "stages/perception.schema.yaml")
@@ -127,17 +127,23 @@ def test_pixels_both_claim_go_to_the_nearer_skeleton():
     assert with_arm[40, 40:43].all() and not region[40, 40:43].all()
 
 
-def test_another_pose_with_a_bone_across_the_signer_does_not_take_their_body():
-    """A confused pose of someone else (a bone 3 px from the signer's own, both segmented
-    with certainty everywhere) takes only what lies beyond the signer's own reach (5 px)."""
+def test_a_pose_with_its_head_on_the_signer_is_confused():
+    """Another pose whose head lies on the signer's head or torso bones (within the reach) has
+    taken the signer for part of itself; a neighbour whose shoulder touches the signer's has
+    not. The mask then leaves the confused one's bones out: the tie keeps the signer."""
     h, w = 60, 100
-    _, xx = np.mgrid[:h, :w]
+    signer_pts, signer_vis = _pose(28, arm_visible=False)
+    core = skeleton_distance(signer_pts, signer_vis, (h, w), limbs=False)
+    beside, _ = _pose(52)  # shoulders 8 px from the signer's, head 24 px away
+    assert not confused_pose(beside, core, reach=6.0)
+    onto = beside.copy()
+    onto[list(HEAD)] -= (20, 0)  # the head drawn on the signer's shoulder line
+    assert confused_pose(onto, core, reach=6.0)
+    assert not confused_pose(np.full((39, 2), np.nan), core, reach=6.0)
     ones = np.ones((h, w), np.float32)
-    signer_bones = np.abs(xx - 28).astype(np.float32)
-    other_bones = np.abs(xx - 31).astype(np.float32)
-    region = person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones], own_reach=5.0)
-    assert region[:, :34].all() and not region[:, 34:].any()
-    assert not person_mask(ones, [ones], 100.0, 0.0, signer_bones, [other_bones])[:, 30:].any()
+    region = person_mask(ones, [ones], 100.0, 0.0,
+                         skeleton_distance(signer_pts, signer_vis, (h, w)), [None])
+    assert region.all()
 
 
 def test_skeleton_distance_without_usable_bones_is_infinite():

@@ -180,14 +180,14 @@ BONE_VISIBILITY = 0.5
 
 
 def skeleton_distance(points: np.ndarray, visibility: np.ndarray,
-                      frame_hw: tuple[int, int]) -> np.ndarray:
+                      frame_hw: tuple[int, int], limbs: bool = True) -> np.ndarray:
     """Float32 (H, W) distance in pixels to a pose's nearest bone (:data:`CORE_BONES`, and
-    :data:`LIMB_BONES` with visible ends) from its landmarks (>= 33, 2) in frame pixels and
-    their visibility; infinite everywhere when no bone has finite ends."""
+    unless not ``limbs`` :data:`LIMB_BONES` with visible ends) from its landmarks (>= 33, 2)
+    in frame pixels and their visibility; infinite everywhere when no bone has finite ends."""
     canvas = np.full(frame_hw, 255, np.uint8)
     drawn = 0
-    bones = list(CORE_BONES) + [(a, b) for a, b in LIMB_BONES
-                                if min(visibility[a], visibility[b]) >= BONE_VISIBILITY]
+    bones = list(CORE_BONES) + [(a, b) for a, b in LIMB_BONES if limbs and
+                                min(visibility[a], visibility[b]) >= BONE_VISIBILITY]
     for a, b in bones:
         ends = points[[a, b]]
         if np.isfinite(ends).all():
@@ -199,10 +199,12 @@ def skeleton_distance(points: np.ndarray, visibility: np.ndarray,
     return cv2.distanceTransform(canvas, cv2.DIST_L2, 3)
 
 
-#: pixels this share of the signer's shoulder width from their own skeleton stay theirs
-#: whoever else claims them (another person's pose, unsure where two people overlap, may put
-#: a bone across the signer)
-OWN_REACH = 0.3
+#: BlazePose's nose and ears: where a person's head is
+HEAD = tuple(BLAZEPOSE_NAMES.index(n) for n in ("nose", "left_ear", "right_ear"))
+#: another pose with its head within this share of the signer's shoulder width of the
+#: signer's head and torso bones has taken the signer for part of itself (a neighbour's
+#: shoulder may touch the signer's; their head does not)
+CONFUSED_REACH = 0.3
 
 
 def shoulder_width(points: np.ndarray) -> float:
@@ -211,22 +213,34 @@ def shoulder_width(points: np.ndarray) -> float:
     return d if np.isfinite(d) else 0.0
 
 
+def confused_pose(points: np.ndarray, signer_core: np.ndarray, reach: float) -> bool:
+    """Whether a pose's head (nose or an ear; landmarks >= 33, 2 in frame pixels) lies within
+    ``reach`` pixels of the signer's head and torso bones (``signer_core``: their
+    :func:`skeleton_distance` without limbs): a pose unsure where one person ends and the
+    other begins, whose bones would cut into the signer."""
+    h, w = signer_core.shape
+    for x, y in points[list(HEAD)]:
+        if np.isfinite(x) and np.isfinite(y) and 0 <= x < w and 0 <= y < h \
+                and signer_core[int(y), int(x)] < reach:
+            return True
+    return False
+
+
 def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
                 margin: float, chosen_bones: np.ndarray | None = None,
-                others_bones: list[np.ndarray] | None = None,
-                own_reach: float = 0.0) -> np.ndarray:
+                others_bones: list[np.ndarray | None] | None = None) -> np.ndarray:
     """Bool (H, W) region of the chosen person from per-person probabilities (H, W): where
     the chosen person's is above 0.5, grown by ``margin * body_size`` pixels, minus what
     another person claims.
 
-    Without skeletons, another person claims the pixels where their probability is above 0.5
-    and the chosen person's. With them (``*_bones``: :func:`skeleton_distance` maps), they
+    Without skeletons (or without the other's: None), another person claims the pixels where
+    their probability is above 0.5 and the chosen person's. With them (``*_bones``:
+    :func:`skeleton_distance` maps), they
     claim where theirs is above 0.5 and either the chosen person's is not or their skeleton is
     the nearer one; that claim, grown by the same margin, also takes the pixels around it
     that lie nearer their skeleton (the outline the chosen person's segmentation still
     covers). The pose model segments everyone in its crop, so two people side by side often
-    both claim each other with certainty. Pixels within ``own_reach`` pixels of the chosen
-    person's skeleton stay theirs."""
+    both claim each other with certainty."""
     region = (chosen > 0.5).astype(np.uint8)
     grow = int(round(margin * body_size))
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
@@ -234,10 +248,10 @@ def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
         region = cv2.dilate(region, disk)
     keep = region.astype(bool)
     for i, other in enumerate(others):
-        if chosen_bones is None or others_bones is None:
+        if chosen_bones is None or others_bones is None or others_bones[i] is None:
             keep &= ~((other > 0.5) & (other > chosen))
             continue
-        theirs = (others_bones[i] < chosen_bones) & (chosen_bones > own_reach)
+        theirs = others_bones[i] < chosen_bones
         claim = (other > 0.5) & ((chosen <= 0.5) | theirs)
         if grow > 0:
             claim |= cv2.dilate(claim.astype(np.uint8), disk).astype(bool) & theirs
@@ -388,10 +402,13 @@ class SignerMasking:
         rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
         self.prev = (pose.points[33], pose.points[34])
         body = 2.0 * float(np.linalg.norm(scale - hip))
+        core = skeleton_distance(pose.points, pose.visibility, (h, w), limbs=False)
+        reach = CONFUSED_REACH * shoulder_width(pose.points)
         region = person_mask(prob, [o[2] for o in others], body, self.rule.margin,
                              skeleton_distance(pose.points, pose.visibility, (h, w)),
-                             [skeleton_distance(o[1].points, o[1].visibility, (h, w))
-                              for o in others], OWN_REACH * shoulder_width(pose.points))
+                             [None if confused_pose(o[1].points, core, reach) else
+                              skeleton_distance(o[1].points, o[1].visibility, (h, w))
+                              for o in others])
         return alpha * region, rows
 
     def _weak_neighbours(self, image, rows, det, weak, pose, have: int) -> list:
