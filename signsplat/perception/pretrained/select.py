@@ -174,7 +174,6 @@ LIMB_BONES = _bones((f"{side}_{a}", f"{side}_{b}") for side in ("left", "right")
     ("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "index"), ("wrist", "pinky"),
     ("wrist", "thumb"), ("index", "pinky"), ("hip", "knee"), ("knee", "ankle"),
     ("ankle", "heel"), ("heel", "foot_index"), ("ankle", "foot_index")))
-SHOULDERS = (BLAZEPOSE_NAMES.index("left_shoulder"), BLAZEPOSE_NAMES.index("right_shoulder"))
 #: a limb bone is drawn when both its points' visibility is at least this
 BONE_VISIBILITY = 0.5
 
@@ -207,6 +206,9 @@ HEAD = tuple(BLAZEPOSE_NAMES.index(n) for n in ("nose", "left_ear", "right_ear")
 CONFUSED_REACH = 0.3
 
 
+SHOULDERS = (BLAZEPOSE_NAMES.index("left_shoulder"), BLAZEPOSE_NAMES.index("right_shoulder"))
+
+
 def shoulder_width(points: np.ndarray) -> float:
     """Pixels between a pose's shoulders (0 when either is not finite)."""
     d = float(np.linalg.norm(points[SHOULDERS[0]] - points[SHOULDERS[1]]))
@@ -235,12 +237,11 @@ def person_mask(chosen: np.ndarray, others: list[np.ndarray], body_size: float,
 
     Without skeletons (or without the other's: None), another person claims the pixels where
     their probability is above 0.5 and the chosen person's. With them (``*_bones``:
-    :func:`skeleton_distance` maps), they
-    claim where theirs is above 0.5 and either the chosen person's is not or their skeleton is
-    the nearer one; that claim, grown by the same margin, also takes the pixels around it
-    that lie nearer their skeleton (the outline the chosen person's segmentation still
-    covers). The pose model segments everyone in its crop, so two people side by side often
-    both claim each other with certainty."""
+    :func:`skeleton_distance` maps), they claim where theirs is above 0.5 and either the
+    chosen person's is not or their skeleton is the nearer one; that claim, grown by the same
+    margin, also takes the pixels around it that lie nearer their skeleton (the outline the
+    chosen person's segmentation still covers). The pose model segments everyone in its
+    crop, so two people side by side often both claim each other with certainty."""
     region = (chosen > 0.5).astype(np.uint8)
     grow = int(round(margin * body_size))
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
@@ -402,13 +403,16 @@ class SignerMasking:
         rows[chosen]["chosen"], rows[chosen]["chosen_by"] = True, how
         self.prev = (pose.points[33], pose.points[34])
         body = 2.0 * float(np.linalg.norm(scale - hip))
-        core = skeleton_distance(pose.points, pose.visibility, (h, w), limbs=False)
-        reach = CONFUSED_REACH * shoulder_width(pose.points)
-        region = person_mask(prob, [o[2] for o in others], body, self.rule.margin,
-                             skeleton_distance(pose.points, pose.visibility, (h, w)),
-                             [None if confused_pose(o[1].points, core, reach) else
-                              skeleton_distance(o[1].points, o[1].visibility, (h, w))
-                              for o in others])
+        bones = others_bones = None
+        if others:  # the skeletons decide only between people
+            core = skeleton_distance(pose.points, pose.visibility, (h, w), limbs=False)
+            reach = CONFUSED_REACH * shoulder_width(pose.points)
+            bones = skeleton_distance(pose.points, pose.visibility, (h, w))
+            others_bones = [None if confused_pose(o[1].points, core, reach) else
+                            skeleton_distance(o[1].points, o[1].visibility, (h, w))
+                            for o in others]
+        region = person_mask(prob, [o[2] for o in others], body, self.rule.margin, bones,
+                             others_bones)
         return alpha * region, rows
 
     def _weak_neighbours(self, image, rows, det, weak, pose, have: int) -> list:
