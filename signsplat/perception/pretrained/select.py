@@ -315,6 +315,13 @@ PERSON_COLUMNS = ("person", "score", "hip_x", "hip_y", "scale_x", "scale_y", "he
                   "head_y0", "head_x1", "head_y1", "appearance", "chosen", "chosen_by")
 
 
+def _detection_row(row: int, det: mp.Detections, j: int) -> dict:
+    """The persons row numbered ``row`` of detection ``j`` (no appearance, not chosen)."""
+    return dict(zip(PERSON_COLUMNS, (
+        row, float(det.scores[j]), *det.keypoints[j, 0], *det.keypoints[j, 1], *det.boxes[j],
+        np.nan, False, ""), strict=True))
+
+
 class SignerMasking:
     """The segment stage's signer step with the pretrained detectors: per frame, the people
     the pose detector finds, the signer among them and the matting alpha restricted to the
@@ -351,9 +358,7 @@ class SignerMasking:
         strong = self.model.spec.min_detection_score
         det, weak = self.model.detect_persons_at(
             image, (strong, min(strong, self.rule.others_min_score)))
-        rows = [dict(zip(PERSON_COLUMNS, (
-            j, float(det.scores[j]), *det.keypoints[j, 0], *det.keypoints[j, 1],
-            *det.boxes[j], np.nan, False, ""), strict=True)) for j in range(len(det))]
+        rows = [_detection_row(j, det, j) for j in range(len(det))]
         chosen, how, signer = None, "", None
         if self.prev is not None:
             pose = self.model.pose(image, self.model.person_roi(*self.prev))
@@ -440,9 +445,7 @@ class SignerMasking:
                 continue
             known.append(other.points[33])
             row = len(rows)
-            rows.append(dict(zip(PERSON_COLUMNS, (
-                row, float(weak.scores[j]), *weak.keypoints[j, 0], *weak.keypoints[j, 1],
-                *weak.boxes[j], np.nan, False, ""), strict=True)))
+            rows.append(_detection_row(row, weak, j))
             out.append((row, other, person_probability(other.segmentation, other.roi,
                                                        image.shape[:2])))
         return out
