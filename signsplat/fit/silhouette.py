@@ -7,15 +7,23 @@ trained on them blurs (docs/avatar.md). Six masks constrain the outline from six
 Two one-sided chamfer terms per (view, frame), both in squared pixels and clamped at
 ``clamp_px`` so a wrong mask pulls with a bounded force:
 
-- ``inside``: every vertex projecting into the image must lie inside the mask - the mean of
-  the mask's outside distance transform (bilinear, 0 inside) over those vertices. Occlusion
-  cannot break it: every point of the body projects inside its own silhouette.
-- ``cover``: every contour pixel of the mask must have a silhouette ("rim") vertex of the body
-  near it - the mean squared distance from the contour pixels to the nearest rim vertex
-  (normal at most ``rim_cos`` off perpendicular to the viewing ray). Rim vertices are chosen
-  and matched without gradient (a k-d tree per image); the gradient flows through the matched
-  vertices' projections. Contour pixels on the image border (a body cut by the frame) are not
-  silhouette and are left out.
+- ``inside``: every vertex projecting into the image must lie inside the mask's outline - the
+  mean of the squared outside distance over those vertices (bilinear, 0 inside). The body
+  hiding itself cannot break it (every point of the body projects inside its own silhouette);
+  an object in front of the person can, as it cuts the mask: the hidden part is then pulled
+  with the bounded force.
+- ``cover``: every point of the mask's outline must have the body's contour near it - the mean
+  squared distance from the outline points to the nearest point of the contour: the projected
+  mesh edges between a triangle facing the camera and one facing away. Points are matched
+  without gradient (a k-d tree per image), as a fraction along their edge; the gradient flows
+  through the edge's two projected vertices. Outline points on the image border (a body cut by
+  the frame) are not silhouette and are left out. Matched to the nearest vertex instead, an
+  outline point between two vertices would pull the body by up to half an edge.
+
+The outline is where a mask pixel meets a pixel outside it, half a pixel from both centres
+(pixel centres at integer coordinates; a mask pixel is one whose centre the person covers).
+Measured from the mask pixels' centres instead, both terms would pull the body's outline half a
+pixel inwards in every view.
 
 Frames whose mask is empty (no person detected) contribute nothing. Both terms are summed over
 views and averaged over frames, like the keypoint term (:mod:`signsplat.fit.objective`).
@@ -31,15 +39,15 @@ import torch
 from scipy.spatial import cKDTree
 
 from signsplat.fit.cameras import project
-from signsplat.geometry.mesh import vertex_normals
 
 
 @dataclass
 class SilhouetteTargets:
     """Per-(view, frame) targets built once from masks (see :func:`targets_from_masks`).
 
-    ``outside (V*T,1,H,W)`` float distance (px) to the mask, 0 inside; ``contours`` list over
-    ``V*T`` of (N,2) float32 contour pixels (x, y); ``valid (V,T)`` bool: the mask is non-empty.
+    ``outside (V*T,1,H,W)`` float signed distance (px) to the mask's outline, negative inside;
+    ``contours`` list over ``V*T`` of (N,2) float32 outline points (x, y); ``valid (V,T)``
+    bool: the mask is non-empty.
     """
 
     outside: torch.Tensor
@@ -50,13 +58,19 @@ class SilhouetteTargets:
 
 
 def mask_contour(mask: np.ndarray, max_points: int) -> np.ndarray:
-    """(N,2) float32 x, y of the mask's boundary pixels (inner 4-neighbour boundary), without
-    the image border, evenly subsampled to at most ``max_points``."""
-    m = mask.astype(np.uint8)
-    boundary = mask & ~cv2.erode(m, np.ones((3, 3), np.uint8)).astype(bool)
-    boundary[0, :] = boundary[-1, :] = boundary[:, 0] = boundary[:, -1] = False
-    ys, xs = np.nonzero(boundary)
-    pts = np.stack([xs, ys], 1).astype(np.float32)
+    """(N,2) float32 x, y of points on the mask's outline: the mid-point between each mask
+    pixel and each of its 4-neighbours outside the mask, neither on the image border, evenly
+    subsampled to at most ``max_points``."""
+    m = np.asarray(mask, bool)
+    inner = np.zeros_like(m)
+    inner[1:-1, 1:-1] = m[1:-1, 1:-1]  # the image border is not the outline
+    pts = []
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        out = ~np.roll(m, (-dy, -dx), axis=(0, 1))  # the neighbour at (y + dy, x + dx)
+        ys, xs = np.nonzero(inner & out)
+        pts.append(np.stack([xs + 0.5 * dx, ys + 0.5 * dy], 1))
+    pts = np.concatenate(pts).astype(np.float32)
+    pts = pts[np.lexsort((pts[:, 0], pts[:, 1]))]  # row by row, like the pixels
     if len(pts) > max_points:
         pts = pts[np.linspace(0, len(pts) - 1, max_points).astype(np.int64)]
     return pts
@@ -74,7 +88,11 @@ def targets_from_masks(masks: np.ndarray, max_contour_points: int = 300,
     valid = masks.reshape(V * T, H * W).any(1)
     for i, m in enumerate(masks.reshape(V * T, H, W)):
         if valid[i]:
-            outside[i, 0] = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
+            # signed distance to the outline, midway between a mask pixel's centre and its
+            # outside neighbour's: bilinear sampling crosses 0 there
+            out = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
+            inn = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 5)
+            outside[i, 0] = np.where(m, 0.5 - inn, out - 0.5)
             contours.append(mask_contour(m, max_contour_points))
         else:
             contours.append(np.zeros((0, 2), np.float32))
@@ -84,19 +102,22 @@ def targets_from_masks(masks: np.ndarray, max_contour_points: int = 300,
 
 @dataclass
 class ContourMatches:
-    """Which body vertex each mask contour pixel is matched to (see :func:`match_contours`):
-    ``view``, ``batch``, ``vertex`` (M,) int64 and ``pixel`` (M,2) of the contour pixels, for
-    the frames ``frames`` (B,) of the targets."""
+    """Where each mask outline point is matched on the body's contour (see
+    :func:`match_contours`): the point at fraction ``along`` (M,) from vertex ``start`` to
+    vertex ``end`` (M,) int64 of a contour edge, in view ``view`` and batch row ``batch`` (M,)
+    int64; ``pixel`` (M,2) the outline points, for the frames ``frames`` (B,) of the targets."""
 
     view: torch.Tensor
     batch: torch.Tensor
-    vertex: torch.Tensor
+    start: torch.Tensor
+    end: torch.Tensor
+    along: torch.Tensor
     pixel: torch.Tensor
     frames: np.ndarray
 
     @property
     def count(self) -> int:
-        return int(self.vertex.shape[0])
+        return int(self.start.shape[0])
 
 
 @dataclass
@@ -116,45 +137,83 @@ class MatchCache:
         return m
 
 
+_EDGES: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def mesh_edges(faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(edges (E,2), sides (E,2))`` int64 of the edges two triangles share: the edge's two
+    vertices and its two faces. Kept per faces tensor (the body model's is fixed)."""
+    key = (faces.data_ptr(), tuple(faces.shape), str(faces.device))
+    if key not in _EDGES:
+        f = faces.long()
+        e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).sort(1).values
+        face = torch.arange(len(f), device=f.device).repeat(3)
+        code = e[:, 0] * (int(f.max()) + 1) + e[:, 1]
+        order = torch.argsort(code)
+        shared = code[order][1:] == code[order][:-1]
+        first, second = order[:-1][shared], order[1:][shared]
+        _EDGES[key] = e[first], torch.stack([face[first], face[second]], 1)
+    return _EDGES[key]
+
+
 def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
                    uv: torch.Tensor, front: torch.Tensor, targets: SilhouetteTargets,
-                   frames: torch.Tensor, rim_cos: float = 0.25) -> ContourMatches:
-    """Nearest rim vertex of every contour pixel, per (view, frame), without gradient.
+                   frames: torch.Tensor, candidates: int = 8) -> ContourMatches:
+    """Nearest point of the body's contour to every mask outline point, per (view, frame),
+    without gradient.
 
-    ``uv (V,B,N,2)`` and ``front (V,B,N)`` are the vertices' projections; rim vertices have a
-    normal at most ``rim_cos`` off perpendicular to the viewing ray (one k-d tree per image).
+    The contour is the mesh's edges between a triangle facing the camera and one facing away
+    (both ends in front of the camera), projected: the outline of the body's image and the
+    folds inside it. Each outline point takes the nearest of its ``candidates`` nearest edges
+    by mid-point (one k-d tree per image). ``uv (V,B,N,2)`` and ``front (V,B,N)`` are the
+    vertices' projections.
     """
     V, B = uv.shape[:2]
     T = targets.valid.shape[1]
+    edges, sides = mesh_edges(faces)
     with torch.no_grad():
-        n = vertex_normals(verts.detach(), faces.long())
+        tri = verts.detach()[:, faces.long()]  # (B,F,3,3)
+        normal = torch.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0], dim=-1)
         centres = -torch.einsum("vji,vj->vi", R.detach(), t.detach())  # (V,3)
-        ray = torch.nn.functional.normalize(verts.detach()[None] - centres[:, None, None], dim=-1)
-        rim = ((n[None] * ray).sum(-1).abs() < rim_cos) & front  # (V,B,N)
+        # n . (c - v0) > 0: the triangle faces camera centre c
+        facing = torch.einsum("bfk,vk->vbf", normal, centres) > \
+            (normal * tri[:, :, 0]).sum(-1)[None]
+        contour = (facing[..., sides[:, 0]] != facing[..., sides[:, 1]]) & \
+            front[..., edges[:, 0]] & front[..., edges[:, 1]]  # (V,B,E)
+        contour_np = contour.cpu().numpy()
         uv_np = uv.detach().cpu().double().numpy()
-        rim_np = rim.cpu().numpy()
-    sel_v, sel_b, sel_n, pts = [], [], [], []
+    edges_np = edges.cpu().numpy()
+    rows: list[tuple] = []
     frames_np = frames.cpu().numpy()
     for v in range(V):
         for b in range(B):
             c = targets.contours[v * T + int(frames_np[b])]
-            ids = np.nonzero(rim_np[v, b])[0]
+            ids = np.nonzero(contour_np[v, b])[0]
             if len(c) == 0 or len(ids) == 0:
                 continue
-            _, j = cKDTree(uv_np[v, b, ids]).query(c)
-            sel_v.append(np.full(len(c), v))
-            sel_b.append(np.full(len(c), b))
-            sel_n.append(ids[j])
-            pts.append(c)
+            p0, p1 = uv_np[v, b, edges_np[ids, 0]], uv_np[v, b, edges_np[ids, 1]]
+            k = min(candidates, len(ids))
+            _, near = cKDTree(0.5 * (p0 + p1)).query(c, k=k)
+            near = near.reshape(len(c), k)
+            a, d = p0[near], p1[near] - p0[near]  # (M,k,2)
+            frac = np.clip(((c[:, None] - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12),
+                           0.0, 1.0)
+            gap = ((a + frac[..., None] * d - c[:, None]) ** 2).sum(-1)
+            best = gap.argmin(1)
+            r = np.arange(len(c))
+            chosen = edges_np[ids[near[r, best]]]
+            rows.append((np.full(len(c), v), np.full(len(c), b), chosen[:, 0], chosen[:, 1],
+                         frac[r, best], c))
     dev = verts.device
-    if not pts:
+    if not rows:
         empty = torch.zeros(0, dtype=torch.int64, device=dev)
-        return ContourMatches(empty, empty, empty, verts.new_zeros((0, 2)), frames_np.copy())
-    return ContourMatches(
-        torch.as_tensor(np.concatenate(sel_v), device=dev),
-        torch.as_tensor(np.concatenate(sel_b), device=dev),
-        torch.as_tensor(np.concatenate(sel_n), device=dev),
-        torch.as_tensor(np.concatenate(pts), dtype=verts.dtype, device=dev), frames_np.copy())
+        return ContourMatches(empty, empty, empty, empty, verts.new_zeros(0),
+                              verts.new_zeros((0, 2)), frames_np.copy())
+    cols = [np.concatenate(x) for x in zip(*rows)]
+    ints = [torch.as_tensor(x, dtype=torch.int64, device=dev) for x in cols[:4]]
+    return ContourMatches(*ints, torch.as_tensor(cols[4], dtype=verts.dtype, device=dev),
+                          torch.as_tensor(cols[5], dtype=verts.dtype, device=dev),
+                          frames_np.copy())
 
 
 def _outside_rows(targets: SilhouetteTargets, frames: torch.Tensor) -> torch.Tensor:
@@ -169,7 +228,7 @@ def _outside_rows(targets: SilhouetteTargets, frames: torch.Tensor) -> torch.Ten
 
 def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, R: torch.Tensor,
                      t: torch.Tensor, targets: SilhouetteTargets, frames: torch.Tensor,
-                     clamp_px: float = 10.0, rim_cos: float = 0.25, near: float = 0.05,
+                     clamp_px: float = 10.0, near: float = 0.05,
                      cache: MatchCache | None = None,
                      projected: tuple[torch.Tensor, torch.Tensor] | None = None
                      ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -195,19 +254,22 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
         (uv[..., 1] < H - 2)
     w = (in_image & valid[..., None]).to(d.dtype)
-    inside = ((d.clamp(max=clamp_px) ** 2 * w).sum(-1) / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
+    inside = ((d.clamp(min=0, max=clamp_px) ** 2 * w).sum(-1)
+              / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
 
     matches = None if cache is None else cache.current(frames)
     if matches is None:
-        matches = match_contours(verts, faces, R, t, uv, front, targets, frames, rim_cos)
+        matches = match_contours(verts, faces, R, t, uv, front, targets, frames)
         if cache is not None:
             cache.matches, cache.age = matches, 0
     if cache is not None:
         cache.age += 1
     if matches.count == 0:
         return inside, verts.new_zeros(())
-    iv, ib, idx, p = matches.view, matches.batch, matches.vertex, matches.pixel
-    dist2 = ((uv[iv, ib, idx] - p) ** 2).sum(-1).clamp(max=clamp_px ** 2)
+    iv, ib, p = matches.view, matches.batch, matches.pixel
+    frac = matches.along[:, None]
+    on_body = (1 - frac) * uv[iv, ib, matches.start] + frac * uv[iv, ib, matches.end]
+    dist2 = ((on_body - p) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     key = iv * B + ib
     per = verts.new_zeros(V * B).index_add_(0, key, dist2)
     cnt = verts.new_zeros(V * B).index_add_(0, key, torch.ones_like(dist2))
