@@ -31,22 +31,24 @@ def _vertices(kpm, params):
         return kpm.model(**inputs).vertices
 
 
-def _render_masks(kpm, params, rig):
-    """(V,T,H,W) masks of the body: every projected triangle filled."""
+def _masks(kpm, params, rig, supersample: int = 1) -> np.ndarray:
+    """(V,T,H,W) masks as the simulator makes them: a pixel is the person's when more than
+    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered;
+    1: the pixels whose centre the body covers)."""
+    from signsplat.synth import mesh_render as mr
+    from signsplat.synth.simulate import coverage_mask
+
     verts = _vertices(kpm, params).double().numpy()
     faces = kpm.model.faces.numpy()
     V, T = rig.num_views, verts.shape[0]
     H, W = int(rig.height[0]), int(rig.width[0])
     out = np.zeros((V, T, H, W), bool)
     for v in range(V):
-        Xc = verts @ rig.R[v].T + rig.t[v]
-        uv = Xc @ rig.K[v].T
-        uv = uv[..., :2] / uv[..., 2:]
+        K = mr.scale_intrinsics(rig.K[v], supersample)
         for t in range(T):
-            img = np.zeros((H, W), np.uint8)
-            for tri in np.round(uv[t][faces] * 16).astype(np.int32):  # one by one: no
-                cv2.fillConvexPoly(img, tri, 1, shift=4)  # even-odd holes where they overlap
-            out[v, t] = img > 0
+            r = mr.rasterize(verts[t], faces, K, rig.R[v], rig.t[v], W * supersample,
+                             H * supersample)
+            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample))
     return out
 
 
@@ -97,7 +99,7 @@ def _three_view_scene(kpm):
     T, V = 2, 3
     gt = random_motion(T, seed=3)
     rig = synthetic_rig(V, arc=120)
-    tg = targets_from_masks(_render_masks(kpm, gt, rig))
+    tg = targets_from_masks(_masks(kpm, gt, rig))
     return _vertices(kpm, gt), _t(rig.K), _t(rig.R), _t(rig.t), tg, torch.arange(T), V
 
 
@@ -115,26 +117,6 @@ def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
     assert float(shift.grad @ shift.detach()) > 0
 
 
-def _coverage_masks(kpm, params, rig, supersample: int = 4) -> np.ndarray:
-    """(V,T,H,W) masks as the simulator makes them: a pixel is the person's when more than
-    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered)."""
-    from signsplat.synth import mesh_render as mr
-    from signsplat.synth.simulate import coverage_mask
-
-    verts = _vertices(kpm, params).double().numpy()
-    faces = kpm.model.faces.numpy()
-    V, T = rig.num_views, verts.shape[0]
-    H, W = int(rig.height[0]), int(rig.width[0])
-    out = np.zeros((V, T, H, W), bool)
-    for v in range(V):
-        K = mr.scale_intrinsics(rig.K[v], supersample)
-        for t in range(T):
-            r = mr.rasterize(verts[t], faces, K, rig.R[v], rig.t[v], W * supersample,
-                             H * supersample)
-            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample))
-    return out
-
-
 def test_the_outline_is_not_pulled_inwards(kpm):
     """Both terms are lowest for the true body, not for one half a pixel thinner: masks mark
     the pixels whose centre the person covers, so the outline lies half a pixel outside the
@@ -143,7 +125,7 @@ def test_the_outline_is_not_pulled_inwards(kpm):
     T, V = 1, 3
     gt = random_motion(T, seed=3)
     rig = synthetic_rig(V, arc=120, size=96)
-    tg = targets_from_masks(_coverage_masks(kpm, gt, rig))
+    tg = targets_from_masks(_masks(kpm, gt, rig, supersample=4))
     verts = _vertices(kpm, gt)
     centre = verts.mean(1, keepdim=True)
     K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
@@ -184,7 +166,7 @@ def test_hard_cases_stay_finite(kpm):
     T, V = 2, 2
     gt = random_motion(T, seed=4)
     rig = synthetic_rig(V, arc=90)
-    masks = _render_masks(kpm, gt, rig)
+    masks = _masks(kpm, gt, rig)
     masks[:, 1] = False  # frame 1: nobody in any view
     tg = targets_from_masks(masks)
     verts = _vertices(kpm, gt).clone()
@@ -215,7 +197,7 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
     T, V = 2, 3
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=120)
-    masks = _render_masks(kpm, gt, rig)
+    masks = _masks(kpm, gt, rig)
     obs = observe(kpm, gt, rig)
     init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
     init["betas"] = gt["betas"][:1]
@@ -310,19 +292,12 @@ def test_outline_points_between_vertices_are_on_the_contour(kpm):
     """At the true body the outline points lie on the body's contour up to the pixel grid, also
     where they fall between two of its vertices: matched to the contour's edges, not to the
     nearest vertex (which sits up to half an edge away)."""
-    from signsplat.synth import mesh_render as mr
-
     T, V = 2, 3
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=120, size=128)
     verts = _vertices(kpm, gt)
     faces = kpm.model.faces
-    masks = np.zeros((V, T, 128, 128), bool)
-    for v in range(V):
-        for f in range(T):
-            masks[v, f] = mr.rasterize(verts[f].double().numpy(), faces.numpy(), rig.K[v],
-                                       rig.R[v], rig.t[v], 128, 128).mask
-    tg = targets_from_masks(masks)
+    tg = targets_from_masks(_masks(kpm, gt, rig))
     _, cover = silhouette_terms(verts, faces, _t(rig.K), _t(rig.R), _t(rig.t), tg,
                                 torch.arange(T))
     per_point = float(cover) / V  # cover sums the views and averages the frames
