@@ -137,23 +137,16 @@ class MatchCache:
         return m
 
 
-_EDGES: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
-
-
 def mesh_edges(faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(edges (E,2), sides (E,2))`` int64 of the edges two triangles share: the edge's two
-    vertices and its two faces. Kept per faces tensor (the body model's is fixed)."""
-    key = (faces.data_ptr(), tuple(faces.shape), str(faces.device))
-    if key not in _EDGES:
-        f = faces.long()
-        e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).sort(1).values
-        face = torch.arange(len(f), device=f.device).repeat(3)
-        code = e[:, 0] * (int(f.max()) + 1) + e[:, 1]
-        order = torch.argsort(code)
-        shared = code[order][1:] == code[order][:-1]
-        first, second = order[:-1][shared], order[1:][shared]
-        _EDGES[key] = e[first], torch.stack([face[first], face[second]], 1)
-    return _EDGES[key]
+    vertices and its two faces (trimesh's face adjacency)."""
+    import trimesh  # only when the silhouette terms run: not part of every fit's start-up
+
+    f = faces.detach().cpu().numpy()
+    mesh = trimesh.Trimesh(vertices=np.zeros((int(f.max()) + 1, 3)), faces=f, process=False)
+    # torch.tensor copies: trimesh's cached arrays are read-only
+    return tuple(torch.tensor(a, dtype=torch.int64, device=faces.device)
+                 for a in (mesh.face_adjacency_edges, mesh.face_adjacency))
 
 
 def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
