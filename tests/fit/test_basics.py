@@ -191,6 +191,42 @@ def test_mpjpe_pa_and_jitter():
     assert fit_eval.acceleration_error_mm(jitter, gt) > 1.0
 
 
+def test_body_seen_mpjpe_counts_only_joints_the_cameras_see():
+    """A joint out of every image (a leg below the frame) does not count; a joint one of four
+    cameras sees does not either; in a one-camera rig that camera is enough."""
+    rng = np.random.default_rng(0)
+    gt = np.zeros((3, 55, 3))
+    gt[:, :22] = rng.uniform(-0.2, 0.2, (3, 22, 3)) + np.array([0.0, 1.2, 0.0])
+    gt[:, 7] = [0.0, -5.0, 0.0]  # far below every camera's frame
+    fit = gt.copy()
+    fit[:, 7] += 0.5  # 500 mm off, but out of frame
+    rig = _ring(4, 120)
+    assert fit_eval.body_seen_mpjpe(fit, gt, rig) < 1e-9
+    assert fit_eval.mpjpe_mm(fit[:, :22], gt[:, :22], 0) > 20.0  # the plain figure counts it
+    fit = gt.copy()
+    fit[:, 3] += [0.01, 0.0, 0.0]  # 10 mm off, seen: 10 mm over the 21 seen joints
+    assert fit_eval.body_seen_mpjpe(fit, gt, rig) == pytest.approx(10.0 / 21, rel=1e-6)
+    # one camera that sees joint 3 and not joint 5: one camera is enough there
+    one = _ring(1, 0)
+    gt[:, 5] = [0.8, 1.2, 0.0]  # beside the front camera's frame; two of the ring see it
+    fit = gt.copy()
+    fit[:, 3] += [0.01, 0.0, 0.0]
+    fit[:, 5] += [0.5, 0.0, 0.0]
+    _, seen_one = fit_eval.in_images(gt[:, :22], one)
+    _, seen_ring = fit_eval.in_images(gt[:, :22], rig)
+    assert not seen_one[0, :, 5].any() and (seen_ring[:, :, 5].sum(0) >= 2).all()
+    assert fit_eval.body_seen_mpjpe(fit, gt, one) == pytest.approx(10.0 / 20, rel=1e-6)
+    assert fit_eval.body_seen_mpjpe(fit, gt, rig) > 20.0
+    # in a rig of four, a joint that one camera sees does not count
+    gt[:, 6] = [1.0, 1.2, 0.0]
+    fit = gt.copy()
+    fit[:, 6] += [0.5, 0.0, 0.0]
+    _, seen_ring = fit_eval.in_images(gt[:, :22], rig)
+    assert (seen_ring[:, :, 6].sum(0) == 1).all()
+    assert fit_eval.body_seen_mpjpe(fit, gt, rig) < 1e-9
+    assert np.isnan(fit_eval.body_seen_mpjpe(fit, np.full_like(gt, 50.0), rig))  # none seen
+
+
 def test_rig_up_direction_of_level_cameras():
     import roma
     rig = _ring(4, 120)

@@ -22,7 +22,8 @@ def _fake(root, scene, rot, centre, body, status, fit_s=100.0):
     d = root / scene / "fit"
     d.mkdir(parents=True)
     rows = [("camera_rotation", "cameras", rot), ("camera_centre", "cameras", centre),
-            ("mpjpe", "body", body), ("mpjpe", "hands", 9.0)]
+            ("mpjpe", "body", body), ("mpjpe", "body_seen", body - 2.0),
+            ("mpjpe", "hands", 9.0)]
     ev = pd.DataFrame([(scene, "multiview", "detected", m, p, v, "x", 1.0, 1.0)
                        for m, p, v in rows],
                       columns=["scene", "mode", "keypoints", "metric", "part", "value", "unit",
@@ -57,6 +58,7 @@ def test_rows_targets_and_summary(tmp_path):
     assert df.loc["good", "image"] == "192x160" and df.loc["good", "effects"] == \
         "lighting,occluder"
     assert df.loc["good", "pipeline_seconds"] == 120.0
+    assert df.loc["good", "body_seen_mpjpe_mm"] == 12.0
     s = summarise(df.reset_index())
     assert (s["multi_camera_scenes"], s["meeting_targets"], s["failed_or_nan"]) == (4, 1, 1)
     assert s["share_meeting_targets"] == 0.25
@@ -85,6 +87,11 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
     assert len(sec.figures) == 1 and (tmp_path / "report" / sec.figures[0].src).exists()
+    assert sec.frames[0][1]["body_seen_mpjpe_mm"].tolist() == [12.0, 12.0]
+    # a table written before the column existed still gets its section
+    df.drop(columns="body_seen_mpjpe_mm").to_parquet(table)
+    sec = fit_suite_section(table, assets)
+    assert "body_seen_mpjpe_mm" not in sec.frames[0][1] and "body_mpjpe_mm" in sec.frames[0][1]
 
 
 def test_the_report_command_shows_the_suite(tmp_path):
