@@ -267,21 +267,14 @@ def reprojection_rows(uv: np.ndarray, obs: np.ndarray) -> list[tuple[str, str, f
     return rows
 
 
-def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode: str,
-                   source: str, gt_smplx: str | os.PathLike | None,
-                   gt_cameras: str | os.PathLike | None, view: int | None = None
-                   ) -> pd.DataFrame:
-    """The ``fit_eval`` table (:data:`FIT_EVAL`) of a fit: reprojection of the cleaned
-    observations ``obs (V,T,133,3)``; with the ground-truth tables, cameras, pose errors and
-    image errors. ``source``: detected or ground_truth; ``view``: the camera of a one-view
-    fit of a multi-camera scene."""
+def truth_rows(kpm: KeypointModel, result: FitResult, mode: str,
+               gt_smplx: str | os.PathLike | None, gt_cameras: str | os.PathLike | None,
+               view: int | None = None) -> list[tuple[str, str, float, str]]:
+    """The ``fit_eval`` rows measured against the ground-truth tables (camera errors, pose
+    errors, image errors), as (metric, part, value, unit); none without them. ``view``: the
+    camera of a one-view fit of a multi-camera scene."""
     rows: list[tuple[str, str, float, str]] = []
-    T = len(result.frames)
-    _, fit_kp, _ = keypoints_of(kpm, result.params)
     rig = result.rig
-    uv, _ = project(torch.as_tensor(fit_kp), torch.as_tensor(rig.K), torch.as_tensor(rig.R),
-                    torch.as_tensor(rig.t))
-    rows += reprojection_rows(uv.numpy(), obs)
     if gt_cameras:
         gt_rig, _ = read_rig(gt_cameras)
         if view is not None:
@@ -322,6 +315,25 @@ def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode:
         if gt_cameras:
             rows.append(("mpjpe", "body_seen", body_seen_mpjpe(fj[fitted], gj[fitted], gt_rig),
                          "mm"))
+    return rows
+
+
+def fit_eval_table(kpm: KeypointModel, result: FitResult, obs: np.ndarray, mode: str,
+                   source: str, gt_smplx: str | os.PathLike | None,
+                   gt_cameras: str | os.PathLike | None, view: int | None = None
+                   ) -> pd.DataFrame:
+    """The ``fit_eval`` table (:data:`FIT_EVAL`) of a fit: reprojection of the cleaned
+    observations ``obs (V,T,133,3)``; with the ground-truth tables, :func:`truth_rows`.
+    ``source``: detected or ground_truth; ``view``: the camera of a one-view fit of a
+    multi-camera scene."""
+    rows: list[tuple[str, str, float, str]] = []
+    T = len(result.frames)
+    _, fit_kp, _ = keypoints_of(kpm, result.params)
+    rig = result.rig
+    uv, _ = project(torch.as_tensor(fit_kp), torch.as_tensor(rig.K), torch.as_tensor(rig.R),
+                    torch.as_tensor(rig.t))
+    rows += reprojection_rows(uv.numpy(), obs)
+    rows += truth_rows(kpm, result, mode, gt_smplx, gt_cameras, view)
     total = float(result.seconds.get("total", float("nan")))
     rows.append(("seconds", "all", total, "s"))
     if "cpu" in result.seconds:  # CPU time of this process (wall time suffers on shared CPUs)

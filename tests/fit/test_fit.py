@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 import torch
 
+from benchmark_scripts import load_benchmark
 from fit_scenes import make_stage, observe, random_motion, synthetic_rig
 from signsplat.cli import main
 from signsplat.config import validate
@@ -251,10 +252,21 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
     ev = read_table(out / "fit_eval.parquet", "fit_eval")
     need = {("mpjpe", "body"), ("pa_mpjpe", "hands"), ("camera_rotation", "cameras"),
             ("reprojection", "all"), ("jitter", "body"), ("seconds", "all"),
-            ("image_error", "all"), ("image_error", "right_hand")}
+            ("image_error", "all"), ("image_error", "right_hand"), ("mpjpe", "body_seen")}
     assert need <= set(zip(ev["metric"], ev["part"]))
     assert (ev["seconds_per_frame"] > 0).all()
     assert len(list((out / "overlays").glob("*.png"))) == 2
+    # benchmarks/fit_eval_add_rows.py gives a fit scored before a row existed that row back,
+    # with the value the fit itself wrote, and leaves the other rows as they were
+    seen = ev[(ev["metric"] == "mpjpe") & (ev["part"] == "body_seen")]["value"].item()
+    older = ev[ev["part"] != "body_seen"]
+    write_table(older, out / "fit_eval.parquet", "fit_eval")
+    add = load_benchmark("fit_eval_add_rows").add_rows
+    assert add(out, d / "gt.parquet", d / "cameras.parquet", proxy_body_path) == \
+        [("mpjpe", "body_seen", pytest.approx(seen, rel=1e-9))]
+    again = read_table(out / "fit_eval.parquet", "fit_eval")
+    assert again.iloc[:len(older)].equals(older.reset_index(drop=True))
+    assert add(out, d / "gt.parquet", d / "cameras.parquet", proxy_body_path) == []
 
 
 def test_cli_bad_input_names_the_file(tmp_path, proxy_body_path, capsys):
