@@ -25,12 +25,13 @@ import sys
 import time
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from signsplat.io.tables import read_table, write_table  # noqa: E402
+from signsplat.io.tables import table_metadata, write_table  # noqa: E402
 from signsplat.report.fit_suite import (plot_suite, scene_row, suite_table,  # noqa: E402
                                         summarise)
 
@@ -84,9 +85,10 @@ def main() -> None:
     out = REPO / a.out
     meta = {"keypoints": a.keypoints, "detectors": a.detectors, "wall_seconds": f"{wall:.0f}",
             "results": str(results)}
-    if a.collect_only and out.exists():  # the run's own wall clock and notes stay
-        meta = {**read_table(out, "fit_suite").attrs, "keypoints": a.keypoints,
-                "results": str(results)}
+    if a.collect_only and out.exists():  # the run's own wall clock and notes stay (also
+        # from a table written before a column was added)
+        meta = {**table_metadata(pq.read_table(out, columns=["scene"])),
+                "keypoints": a.keypoints, "results": str(results)}
         wall = float(meta.get("wall_seconds", 0))
     write_table(df, out, "fit_suite", metadata=meta)
     plot_suite(df, out.with_suffix(".svg"))
