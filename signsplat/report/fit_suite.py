@@ -172,6 +172,10 @@ def summarise(df: pd.DataFrame) -> dict:
                            "body_mpjpe_mm"]].to_dict("records"),
         "median_camera_rotation_deg": float(multi["camera_rotation_deg"].median()),
         "median_body_mpjpe_mm": float(multi["body_mpjpe_mm"].median()),
+        # the body target over the joints the cameras see (None: a table without the column)
+        "body_seen_within_target": int((multi["body_seen_mpjpe_mm"] <=
+                                        TARGETS["body_mpjpe_mm"]).sum())
+        if "body_seen_mpjpe_mm" in multi else None,
         "pipeline_hours": float(df["pipeline_seconds"].sum() / 3600),
     }
 
@@ -248,6 +252,9 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
                   f"{s['meeting_targets']} of {s['multi_camera_scenes']} scenes with 3 or more "
                   f"cameras meet cameras <= 1 deg and <= 2 cm and body MPJPE <= 25 mm; "
                   f"{s['failed_or_nan']} failed; {s['pipeline_hours']:.1f} h of pipeline."
+                  + ("" if s["body_seen_within_target"] is None else
+                     f" Over the body joints two or more cameras see, body MPJPE <= 25 mm on "
+                     f"{s['body_seen_within_target']} of {s['multi_camera_scenes']}.")
                   + _unplaced_note(df))
     keep = ["scene", "cameras", "arc_deg", "distance_m", "image", "frames", "effects",
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "body_seen_mpjpe_mm",

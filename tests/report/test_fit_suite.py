@@ -84,6 +84,7 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     sec = fit_suite_section(table, assets, table.with_suffix(".svg"))
     assert "1 of 2 scenes with 3 or more cameras" in sec.intro
     assert "could not be placed" in sec.intro and "unplaced (1)" in sec.intro
+    assert "joints two or more cameras see, body MPJPE <= 25 mm on 2 of 2" in sec.intro
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
     assert len(sec.figures) == 1 and (tmp_path / "report" / sec.figures[0].src).exists()
@@ -92,6 +93,7 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     df.drop(columns="body_seen_mpjpe_mm").to_parquet(table)
     sec = fit_suite_section(table, assets)
     assert "body_seen_mpjpe_mm" not in sec.frames[0][1] and "body_mpjpe_mm" in sec.frames[0][1]
+    assert "joints two or more cameras see" not in sec.intro
 
 
 def test_the_report_command_shows_the_suite(tmp_path):
