@@ -65,7 +65,7 @@ class SignerMesh:
 @dataclass(frozen=True)
 class ViewRender:
     """One rendered view: ``rgb`` (H,W,3) float32 [0,1], ``mask`` (H,W) bool signer coverage
-    above one half (:func:`coverage_mask`), ``depth`` (H,W) float32 nearest surface in each
+    above one half, or one half with the pixel centre covered (:func:`coverage_mask`), ``depth`` (H,W) float32 nearest surface in each
     pixel (signer or prop, metres, inf = empty), ``face`` (H,W) int32 triangle of that nearest
     surface (signer faces first, then props; -1 = empty), ``coverage`` (H,W) float32 fraction
     of samples showing the signer."""
@@ -77,32 +77,24 @@ class ViewRender:
     coverage: np.ndarray
 
 
-def coverage_mask(coverage: np.ndarray) -> np.ndarray:
-    """(H,W) bool: the pixels the signer covers more than half of.
+def coverage_mask(coverage: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray:
+    """(H,W) bool: the pixels the signer covers more than half of, and of those covered exactly
+    half the ones whose centre the signer covers (``centre`` (H,W) bool, one sample at each
+    pixel centre; None: no half-covered pixel counts).
 
-    A pixel covered exactly half (with an even supersampling, a pixel whose centre lies within
-    half a sample spacing of an edge along a row or column) counts for a fixed pseudo-random
-    half of such pixels. Counting all of them would put the mask's outline that far outside the
-    body's (a quarter pixel at 2 x 2 samples), none of them that far inside; the silhouette
-    terms of the fit read the outline as passing midway between a mask pixel's centre and its
-    outside neighbour's.
+    With an even supersampling a pixel whose centre lies within half a sample spacing of an
+    edge is covered exactly half. Counting all of them would put the mask's outline that far
+    outside the body's (a quarter pixel at 2 x 2 samples), none of them that far inside; the
+    silhouette terms of the fit read the outline as passing midway between a mask pixel's
+    centre and its outside neighbour's. The centre sample splits them along the true edge, so
+    the outline stays unbiased and follows the edge without noise (an avatar trained on the
+    masks must reproduce it).
     """
     coverage = np.asarray(coverage, np.float32)
-    tie = np.abs(coverage - 0.5) < 1e-6
     mask = coverage > 0.5
-    if tie.any():
-        mask |= tie & _tie_pattern(coverage.shape)
+    if centre is not None:
+        mask |= (np.abs(coverage - 0.5) < 1e-6) & np.asarray(centre, bool)
     return mask
-
-
-_TIE_PATTERNS: dict[tuple[int, int], np.ndarray] = {}
-
-
-def _tie_pattern(shape: tuple[int, int]) -> np.ndarray:
-    """A fixed (H,W) bool pattern, half True, uncorrelated with any edge's direction."""
-    if shape not in _TIE_PATTERNS:
-        _TIE_PATTERNS[shape] = np.random.default_rng(0).random(shape) < 0.5
-    return _TIE_PATTERNS[shape]
 
 
 def _block_nearest(depth: np.ndarray, face: np.ndarray, s: int):
@@ -245,7 +237,13 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
         rgb = effect.image(rgb, view, frame)
     rgb = np.clip(rgb, 0.0, 1.0).astype(np.float32)
     depth, face = _block_nearest(depth_hi, face_hi, s)
-    return ViewRender(rgb, coverage_mask(coverage), depth, face, coverage)
+    centre = None
+    if (np.abs(coverage - 0.5) < 1e-6).any():  # half-covered pixels: one sample at each centre
+        pose = poses[len(poses) // 2] if depth_pose is None else depth_pose
+        mid = mr.rasterize(scene_vertices(pose), faces, cam.K, cam.R, cam.t, cam.width,
+                           cam.height, near)
+        centre = (mid.face_id >= 0) & (mid.face_id < n_signer)
+    return ViewRender(rgb, coverage_mask(coverage, centre), depth, face, coverage)
 
 
 # --- keypoints -----------------------------------------------------------------------------

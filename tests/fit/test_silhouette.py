@@ -33,8 +33,8 @@ def _vertices(kpm, params):
 
 def _masks(kpm, params, rig, supersample: int = 1) -> np.ndarray:
     """(V,T,H,W) masks as the simulator makes them: a pixel is the person's when more than
-    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered;
-    1: the pixels whose centre the body covers)."""
+    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered),
+    or exactly half and its centre is (1: the pixels whose centre the body covers)."""
     from signsplat.synth import mesh_render as mr
     from signsplat.synth.simulate import coverage_mask
 
@@ -48,7 +48,9 @@ def _masks(kpm, params, rig, supersample: int = 1) -> np.ndarray:
         for t in range(T):
             r = mr.rasterize(verts[t], faces, K, rig.R[v], rig.t[v], W * supersample,
                              H * supersample)
-            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample))
+            centre = mr.rasterize(verts[t], faces, rig.K[v], rig.R[v], rig.t[v], W, H).mask
+            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample),
+                                      centre)
     return out
 
 
