@@ -111,8 +111,8 @@ def test_visible_keypoints_fall_inside_the_masks(tiny_run):
     for row in frames.itertuples():
         mask = read_mask(out / row.mask)
         dil = mask.copy()
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
                 dil |= np.roll(np.roll(mask, dy, 0), dx, 1)
         sel = kp[(kp.view == row.view) & (kp.frame == row.frame) & kp.visible]
         px = np.floor(sel["x"].to_numpy() + 0.5).astype(int)
@@ -121,7 +121,9 @@ def test_visible_keypoints_fall_inside_the_masks(tiny_run):
         inside += mask[py, px].sum()
         inside_dilated += dil[py, px].sum()
     assert total > 0.3 * len(kp)  # most keypoints of an upper-body view are visible
-    # points on the outline (fingertips, ears, the jaw) fall on either side of it
+    # points on the outline (fingertips, ears, the jaw) fall on either side of it; a fingertip
+    # thinner than a pixel (the little finger at 128 px) may hold no pixel of the mask, so its
+    # nearest mask pixel can be two pixels away
     assert inside >= 0.90 * total
     assert inside_dilated == total
 
