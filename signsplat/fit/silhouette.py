@@ -123,11 +123,13 @@ class ContourMatches:
 @dataclass
 class MatchCache:
     """Contour matches kept over several evaluations (ICP-style): re-matched every ``every``
-    calls of :func:`silhouette_terms`, or at once when the frames change. One per stage run."""
+    calls of :func:`silhouette_terms`, or at once when the frames change. One per stage run;
+    ``edges`` keeps the stage's mesh edges (:func:`mesh_edges`, the faces do not change)."""
 
     every: int = 1
     matches: ContourMatches | None = None
     age: int = 0
+    edges: tuple[torch.Tensor, torch.Tensor] | None = None
 
     def current(self, frames: torch.Tensor) -> ContourMatches | None:
         m = self.matches
@@ -151,7 +153,8 @@ def mesh_edges(faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
                    uv: torch.Tensor, front: torch.Tensor, targets: SilhouetteTargets,
-                   frames: torch.Tensor, candidates: int = 8) -> ContourMatches:
+                   frames: torch.Tensor, candidates: int = 8,
+                   edges: tuple[torch.Tensor, torch.Tensor] | None = None) -> ContourMatches:
     """Nearest point of the body's contour to every mask outline point, per (view, frame),
     without gradient.
 
@@ -159,11 +162,12 @@ def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t:
     (both ends in front of the camera), projected: the outline of the body's image and the
     folds inside it. Each outline point takes the nearest of its ``candidates`` nearest edges
     by mid-point (one k-d tree per image). ``uv (V,B,N,2)`` and ``front (V,B,N)`` are the
-    vertices' projections.
+    vertices' projections; ``edges``: :func:`mesh_edges` of ``faces`` when the caller keeps
+    them.
     """
     V, B = uv.shape[:2]
     T = targets.valid.shape[1]
-    edges, sides = mesh_edges(faces)
+    edges, sides = mesh_edges(faces) if edges is None else edges
     with torch.no_grad():
         tri = verts.detach()[:, faces.long()]  # (B,F,3,3)
         normal = torch.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0], dim=-1)
@@ -252,7 +256,10 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
 
     matches = None if cache is None else cache.current(frames)
     if matches is None:
-        matches = match_contours(verts, faces, R, t, uv, front, targets, frames)
+        if cache is not None and cache.edges is None:
+            cache.edges = mesh_edges(faces)
+        matches = match_contours(verts, faces, R, t, uv, front, targets, frames,
+                                 edges=None if cache is None else cache.edges)
         if cache is not None:
             cache.matches, cache.age = matches, 0
     if cache is not None:

@@ -65,10 +65,10 @@ class SignerMesh:
 @dataclass(frozen=True)
 class ViewRender:
     """One rendered view: ``rgb`` (H,W,3) float32 [0,1], ``mask`` (H,W) bool signer coverage
-    above one half, or one half with the pixel centre covered (:func:`coverage_mask`), ``depth`` (H,W) float32 nearest surface in each
-    pixel (signer or prop, metres, inf = empty), ``face`` (H,W) int32 triangle of that nearest
-    surface (signer faces first, then props; -1 = empty), ``coverage`` (H,W) float32 fraction
-    of samples showing the signer."""
+    above one half, or one half with the pixel centre covered (:func:`coverage_mask`),
+    ``depth`` (H,W) float32 nearest surface in each pixel (signer or prop, metres, inf =
+    empty), ``face`` (H,W) int32 triangle of that nearest surface (signer faces first, then
+    props; -1 = empty), ``coverage`` (H,W) float32 fraction of samples showing the signer."""
 
     rgb: np.ndarray
     mask: np.ndarray
