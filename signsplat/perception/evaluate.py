@@ -3,6 +3,9 @@
 Metrics (one row each in ``eval.parquet``, table ``perception_eval``):
 
 - ``mask_iou``: mean over frames of |pred & gt| / |pred | gt| (1 when both are empty).
+- ``mask_area_bias``: (sum of |pred| - sum of |gt|) / sum of |gt| over the frames: how much
+  larger (> 0) or smaller the predicted masks are. An outline drawn half a pixel outside the
+  true one barely moves the IoU but biases the fit's mask terms (docs/fit.md).
 - ``pck@0.05`` per part (body, feet, face, left_hand, right_hand): the fraction of keypoints
   visible in the ground truth whose prediction lies within 0.05 x the person box size, where
   the box is the ground-truth mask's box and its size is max(width, height) in pixels. A
@@ -38,6 +41,14 @@ def mask_iou(pred: np.ndarray, gt: np.ndarray) -> float:
     """IoU of two (H, W) bool masks; 1.0 when both are empty."""
     union = np.logical_or(pred, gt).sum()
     return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
+
+
+def mask_area_bias(pred_areas, gt_areas) -> float:
+    """Relative area bias of predicted masks against their ground truth, pooled over the
+    frames, from the masks' areas in pixels (one per frame): (sum pred - sum gt) / sum gt;
+    NaN when every ground truth is empty."""
+    gt, pred = float(np.sum(gt_areas)), float(np.sum(pred_areas))
+    return float("nan") if gt == 0 else (pred - gt) / gt
 
 
 def keypoint_errors(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray,
@@ -82,13 +93,17 @@ def accuracy(sim_dir: str | os.PathLike, perception_dir: str | os.PathLike) -> p
     scene = str(frames["scene"].iloc[0])
     keys = frames.merge(masks[["view", "frame", "mask"]], on=["view", "frame"],
                         suffixes=("", "_pred")).sort_values(["view", "frame"])
-    ious, sizes = [], []
+    ious, sizes, pred_areas, gt_areas = [], [], [], []
     for _, r in keys.iterrows():
         gt = read_mask(sim_dir / r["mask"])
-        ious.append(mask_iou(read_mask(perception_dir / r["mask_pred"]), gt))
+        pred = read_mask(perception_dir / r["mask_pred"])
+        ious.append(mask_iou(pred, gt))
+        pred_areas.append(int(pred.sum()))
+        gt_areas.append(int(gt.sum()))
         box = box_from_mask(gt)
         sizes.append(np.nan if box is None else max(box[2] - box[0], box[3] - box[1]))
-    rows = [(scene, "mask_iou", "all", float(np.mean(ious)), len(ious))]
+    rows = [(scene, "mask_iou", "all", float(np.mean(ious)), len(ious)),
+            (scene, "mask_area_bias", "all", mask_area_bias(pred_areas, gt_areas), len(ious))]
     if "visible" not in gt_kp.columns:
         gt_kp = gt_kp.assign(visible=gt_kp["score"] > 0.5)
     gxy = np.stack([_frame_arrays(gt_kp, keys, "x"), _frame_arrays(gt_kp, keys, "y")], -1)

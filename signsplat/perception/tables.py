@@ -62,10 +62,11 @@ EVAL_TABLE = register_table(Table(
     "Perception accuracy and speed of one scene against ground truth (one row per metric).",
     {
         "scene": "str sequence name",
-        "metric": "str mask_iou | pck@0.05 | mean_px_error | fps | stage_fps",
+        "metric": "str mask_iou | mask_area_bias | pck@0.05 | mean_px_error | fps | stage_fps",
         "part": "str all | body | feet | face | left_hand | right_hand | segment | keypoints "
                 "| total",
-        "value": "float64 the metric (IoU and PCK in [0, 1], error in pixels, frames/s)",
+        "value": "float64 the metric (IoU and PCK in [0, 1], area bias as a fraction of the true "
+                 "area, error in pixels, frames/s)",
         "count": "int64 frames or keypoints the value is computed over",
     },
 ))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from signsplat.perception.evaluate import keypoint_errors, mask_iou
+from signsplat.perception.evaluate import keypoint_errors, mask_area_bias, mask_iou
 
 
 def test_mask_iou():
@@ -14,6 +14,25 @@ def test_mask_iou():
     a[:2] = True
     b[1:3] = True
     assert mask_iou(a, b) == 4 / 12
+
+
+def _areas(masks):
+    return [int(m.sum()) for m in masks]
+
+
+def test_mask_area_bias_is_pooled_and_signed():
+    gt = np.zeros((10, 10), bool)
+    gt[3:7, 3:7] = True                   # 16 px
+    grown = np.zeros_like(gt)
+    grown[2:8, 2:8] = True                # 36 px: the outline one pixel further out
+    shrunk = np.zeros_like(gt)
+    shrunk[4:6, 4:6] = True               # 4 px
+    full = np.ones_like(gt)               # 100 px
+    assert mask_area_bias(_areas([grown]), _areas([gt])) == 20 / 16
+    assert mask_area_bias(_areas([shrunk]), _areas([gt])) == -12 / 16
+    # pooled over the frames, not a mean of the frames' ratios (which would be 0.625)
+    assert mask_area_bias(_areas([grown, full]), _areas([gt, full])) == 20 / 116
+    assert np.isnan(mask_area_bias([5], [0]))
 
 
 def test_pck_and_pixel_error_per_part():
