@@ -61,7 +61,7 @@ class SegmenterSpec:
     std: tuple[float, float, float] = (127.5, 127.5, 127.5)
     color_order: str = "rgb"
     output_index: int = 0
-    threshold: float = 0.5
+    threshold: float = 0.7
     batch_size: int = 8
     reference_size: int | None = None
     device: str = "auto"
