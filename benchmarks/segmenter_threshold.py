@@ -17,11 +17,13 @@ varies.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from signsplat.io.atomic import atomic_path
 from signsplat.io.images import read_mask, read_rgb
 from signsplat.io.tables import read_table
 from signsplat.perception.cli import perception_config, specs
@@ -69,15 +71,13 @@ def main() -> None:
                    default=ROOT / "benchmarks/results/segmenter_threshold.parquet")
     args = p.parse_args()
     spec, _ = specs(perception_config(None))
-    spec = type(spec)(**{**spec.__dict__, "path": str(ROOT / spec.path)})
+    spec = dataclasses.replace(spec, path=str(ROOT / spec.path))
     model = load_segmenter(spec, args.threads)
     rows = [r for g in args.groups for r in group_rows(g, model, spec, args.thresholds,
                                                         args.every)]
     df = pd.DataFrame(rows)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp.parquet")
-    df.to_parquet(tmp, index=False)
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        df.to_parquet(tmp, index=False)
     with pd.option_context("display.width", 120):
         print(df.assign(area_bias=df["area_bias"] * 100, wrong_fraction=df["wrong_fraction"] * 100)
               .to_string(index=False, float_format="%.2f"))

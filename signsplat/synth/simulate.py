@@ -93,8 +93,13 @@ def coverage_mask(coverage: np.ndarray, centre: np.ndarray | None = None) -> np.
     coverage = np.asarray(coverage, np.float32)
     mask = coverage > 0.5
     if centre is not None:
-        mask |= (np.abs(coverage - 0.5) < 1e-6) & np.asarray(centre, bool)
+        mask |= half_covered(coverage) & np.asarray(centre, bool)
     return mask
+
+
+def half_covered(coverage: np.ndarray) -> np.ndarray:
+    """(H,W) bool: the pixels the signer covers exactly half of (:func:`coverage_mask`)."""
+    return np.abs(np.asarray(coverage, np.float32) - 0.5) < 1e-6
 
 
 def _block_nearest(depth: np.ndarray, face: np.ndarray, s: int):
@@ -238,7 +243,7 @@ def render_view(poses: Sequence[np.ndarray], weights: Sequence[float], signer: S
     rgb = np.clip(rgb, 0.0, 1.0).astype(np.float32)
     depth, face = _block_nearest(depth_hi, face_hi, s)
     centre = None
-    if (np.abs(coverage - 0.5) < 1e-6).any():  # half-covered pixels: one sample at each centre
+    if half_covered(coverage).any():  # one sample at each pixel centre decides them
         pose = poses[len(poses) // 2] if depth_pose is None else depth_pose
         mid = mr.rasterize(scene_vertices(pose), faces, cam.K, cam.R, cam.t, cam.width,
                            cam.height, near)
