@@ -40,7 +40,7 @@ import numpy as np
 
 from signsplat.fit.cameras import (pnp, pnp_ransac, projection_matrices, rig_prior,
                                    triangulate)
-from signsplat.geometry.align import umeyama
+from signsplat.geometry.align import rotation_angle_deg, umeyama
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,8 @@ class RigHypotheses:
     view_px: np.ndarray | None = None
     #: every whole-rig hypothesis tried: name -> (R, t)
     rigs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: views of the winner turned around (:func:`turn_views`): view -> (px before, after)
+    turned: dict[int, tuple[float, float]] = field(default_factory=dict)
 
 
 def placed_views(status: list[str]) -> list[int]:
@@ -131,6 +133,15 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, w: np.ndarray, threshold_p
 
 # --- scoring ----------------------------------------------------------------------------------
 
+def project_points(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One camera's projection of points X (...,3): (pixels (...,2), in front of it (...))."""
+    xc = X @ R.T + t
+    front = xc[..., 2] > 1e-6
+    uv = xc[..., :2] / np.where(front, xc[..., 2], 1.0)[..., None] * K[[0, 1], [0, 1]] + K[:2, 2]
+    return uv, front
+
+
 def reprojection_errors(K: np.ndarray, R: np.ndarray, t: np.ndarray, uv: np.ndarray,
                         w: np.ndarray, leave_one_out: bool = True,
                         active: np.ndarray | None = None,
@@ -160,10 +171,7 @@ def reprojection_errors(K: np.ndarray, R: np.ndarray, t: np.ndarray, uv: np.ndar
     big = 2.0 * float(np.max(np.abs(K[:, :2, 2]))) * 1.5  # about the image diagonal
 
     def project_into(v, X, ok):
-        xc = X @ R[v].T + t[v]
-        front = xc[:, 2] > 1e-6
-        uvp = (xc[:, :2] / np.where(front, xc[:, 2], 1.0)[:, None]) * K[v, [0, 1], [0, 1]] \
-            + K[v, :2, 2]
+        uvp, front = project_points(K[v], R[v], t[v], X)
         e = np.linalg.norm(uvp - uv[v], axis=-1)
         return np.where(ok & seen[v], np.where(front, e, big), np.nan)
 
@@ -716,10 +724,8 @@ def _swap_evidence(K, R, t, obs, threshold_px, views) -> np.ndarray:
             continue
         X, ok = robust_triangulate(P[others], uv[others], w[others], threshold_px)
         X, ok = X.reshape(T, 133, 3), ok.reshape(T, 133)
-        xc = np.einsum("ij,tkj->tki", R[v], X) + t[v]
-        front = ok & (xc[..., 2] > 1e-6)
-        proj = xc[..., :2] / np.where(front, xc[..., 2], 1.0)[..., None] * K[v, [0, 1], [0, 1]] \
-            + K[v, :2, 2]
+        proj, front = project_points(K[v], R[v], t[v], X)
+        front &= ok
         o = obs[v]
         as_is = np.linalg.norm(o[:, test, :2] - proj[:, test], axis=-1)
         swapped = np.linalg.norm(o[:, test, :2] - proj[:, mirror[test]], axis=-1)
@@ -768,6 +774,113 @@ def exchange_sides(obs: np.ndarray, swaps: np.ndarray) -> np.ndarray:
     v, f = np.nonzero(swaps)
     out[v, f] = obs[v, f][:, mirror_index()]
     return out
+
+
+# --- views placed on the wrong side of the signer -------------------------------------------
+
+def refine_view(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, uv: np.ndarray,
+                threshold_px: float, rounds: int = 3) -> tuple[np.ndarray, np.ndarray, float]:
+    """One camera's pose refined on fixed points X (N,3) and their detections uv (N,2)
+    (OpenCV's Levenberg-Marquardt ``solvePnPRefineLM``), leaving out after each round the
+    points farther than ``3 threshold_px``. Returns (R, t, median px over all N points)."""
+    obj = np.ascontiguousarray(X, np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(uv, np.float64).reshape(-1, 1, 2)
+    rvec = cv2.Rodrigues(np.asarray(R, np.float64))[0]
+    tvec = np.asarray(t, np.float64).reshape(3, 1).copy()
+    keep = np.ones(len(obj), bool)
+    for _ in range(rounds):
+        rvec, tvec = cv2.solvePnPRefineLM(obj[keep], img[keep], K, None, rvec, tvec)
+        proj, front = project_points(K, cv2.Rodrigues(rvec)[0], tvec.reshape(3), X)
+        err = np.where(front, np.linalg.norm(proj - uv, axis=-1), np.inf)
+        if (err <= 3 * threshold_px).sum() < 12:
+            break
+        keep = err <= 3 * threshold_px
+    return cv2.Rodrigues(rvec)[0], tvec.reshape(3), float(np.median(err))
+
+
+def turned_around(R: np.ndarray, t: np.ndarray, centre: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A camera moved half a turn about the vertical (world y) through ``centre``: the same
+    view of the signer from the other side."""
+    Q = np.diag([-1.0, 1.0, -1.0])
+    c = np.asarray(centre, float)
+    C = Q @ (-R.T @ t - c) + c
+    R2 = R @ Q
+    return R2, -R2 @ C
+
+
+def _view_error(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, ok: np.ndarray,
+                obs_v: np.ndarray) -> float:
+    """Median over frames of one camera's median distance from its detections obs_v (T,133,3)
+    to the points X (T,133,3) (``ok``: triangulated), each frame taken as labelled or with its
+    sides exchanged, whichever is closer (the fit exchanges such view-frames back)."""
+    proj, front = project_points(K, R, t, X)
+    mirror = mirror_index()
+    seen = obs_v[..., 2] > 0
+    frames = []
+    for f in range(len(obs_v)):
+        best = np.inf
+        for idx in (np.arange(133), mirror):
+            m = seen[f] & ok[f, idx]
+            if m.sum() >= 4:
+                e = np.where(front[f, idx][m],
+                             np.linalg.norm(obs_v[f, m, :2] - proj[f, idx][m], axis=-1), np.inf)
+                best = min(best, float(np.median(e)))
+        if np.isfinite(best):
+            frames.append(best)
+    return float(np.median(frames)) if frames else np.inf
+
+
+def turn_views(K: np.ndarray, R: np.ndarray, t: np.ndarray, obs: np.ndarray, views: list[int],
+               threshold_px: float, margin: float, centre: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[float, float]]]:
+    """Views placed on the wrong side of the signer, turned around.
+
+    Seen from behind with left and right labelled the other way round, a body's keypoints look
+    like a (mirrored) front view, so a reconstruction can place such a camera facing the front,
+    and its bundle adjustment, which moves the points too, stays there. Against the points the
+    other views triangulate the wrong side is no minimum: each view is refined on them from its
+    pose and from that pose turned half a turn about the vertical through ``centre``. A
+    refined pose more than 90 degrees from the view's own is a candidate when its error
+    (:func:`_view_error`, which allows every frame its sides exchanged, so a true back view
+    with exchanged labels keeps its side) is below ``margin`` times the view's; the candidate
+    with the largest gain is taken, then the others are tried again, one view at a time.
+    Smaller corrections are left to the fit: on biased detections they lead towards the
+    keypoints' optimum, away from the true rig (docs/fit.md).
+
+    obs (V,T,133,3): the observations the rig was estimated on. Returns (R, t, {view: (error
+    px before, after)})."""
+    R, t = np.array(R, float), np.array(t, float)
+    T = obs.shape[1]
+    uv, w = tracks(obs)
+    turned: dict[int, tuple[float, float]] = {}
+    while margin > 0:
+        P = projection_matrices(K, R, t)
+        errs, pts = {}, {}
+        for v in views:
+            others = [u for u in views if u != v]
+            if v in turned or len(others) < 2:
+                continue
+            X, ok = robust_triangulate(P[others], uv[others], w[others], threshold_px)
+            m = ok & (w[v] > 0)
+            if m.sum() < 12:
+                continue
+            pts[v] = (X.reshape(T, 133, 3), ok.reshape(T, 133), X[m], uv[v, m])
+            errs[v] = _view_error(K[v], R[v], t[v], *pts[v][:2], obs[v])
+        best = None  # (ratio, view, R, t, error)
+        for v in errs:
+            for start in ((R[v], t[v]), turned_around(R[v], t[v], centre)):
+                Rn, tn, _ = refine_view(K[v], *start, *pts[v][2:], threshold_px)
+                if rotation_angle_deg(Rn, R[v]) <= 90.0:
+                    continue
+                e = _view_error(K[v], Rn, tn, *pts[v][:2], obs[v])
+                if e < margin * errs[v] and (best is None or e / errs[v] < best[0]):
+                    best = (e / errs[v], v, Rn, tn, e)
+        if best is None:
+            return R, t, turned
+        _, v, R[v], t[v], e = best
+        turned[v] = (errs[v], e)
+    return R, t, turned
 
 
 # --- the body: PnP of the rest body's head and torso ----------------------------------------
@@ -973,7 +1086,13 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                              scores, np.full(V, np.nan))
     winner = choose_rig(scores, order, ic["prior_margin"])
     (R, t, status), px = tried[winner]
-    R, t, status = R.copy(), t.copy(), list(status)
+    R, t, turned = turn_views(K, R, t, est, live, thr, ic["turn_margin"], chest)
+    status = list(status)
+    for v, (before, after) in turned.items():
+        log.info("camera init: view %d turned around (it was placed facing the other side of "
+                 "the signer): %.2f -> %.2f px from the other views' points", v, before, after)
+    if turned:
+        px = heldout_errors(K, R, t, uv_t, w_t, limit, robust_px=thr)
     for v in live:
         if not np.isfinite(px[v]) or px[v] > limit[v]:
             log.warning("camera init: view %d cannot be placed (held-out error %.1f px, limit "
@@ -982,7 +1101,7 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                         sorted(cands[v]), status[v])
             status[v] = "unplaced"
     log.info("camera init: winner %r, views %s", winner, status)
-    return RigHypotheses(R, t, status, winner, scores, px, rigs)
+    return RigHypotheses(R, t, status, winner, scores, px, rigs, turned)
 
 
 def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,

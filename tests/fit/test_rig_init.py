@@ -362,3 +362,30 @@ def test_a_view_seen_from_behind_with_its_sides_exchanged_throughout_is_placed(k
     assert "unplaced" not in hyp.status
     err = camera_errors(Rig(rig.K, hyp.R, hyp.t, rig.width, rig.height), rig)
     assert err["rotation_deg_max"] < 1.0
+
+
+def test_a_view_placed_on_the_wrong_side_of_the_signer_is_turned_around(kpm, motion):
+    """A camera behind the signer, at 150 degrees, placed facing the front instead (half a turn
+    about the vertical through the chest, where a reconstruction of a back view can settle):
+    `turn_views` finds it from the points the other views triangulate and turns it back to
+    the truth. A rig placed right keeps every camera, and margin 0 turns none."""
+    rig = placed_rig([0.0, 60.0, 150.0, 250.0], [2.4, 2.8, 2.6, 2.5], [1.4, 1.5, 1.3, 1.4])
+    obs = observe(kpm, motion, rig, noise_px=1.0, seed=5)
+    chest = neutral_keypoints(kpm)[[5, 6]].mean(0)
+    thr, views = 2.56, [0, 1, 2, 3]
+    R, t = rig.R.copy(), rig.t.copy()
+    R[2], t[2] = rig_init.turned_around(rig.R[2], rig.t[2], chest)
+
+    def error(R_, t_):
+        return camera_errors(Rig(rig.K, R_, t_, rig.width, rig.height), rig)
+
+    assert error(R, t)["rotation_deg_max"] > 150  # really on the other side
+    Rn, tn, turned = rig_init.turn_views(rig.K, R, t, obs, views, thr, 0.6, chest)
+    assert list(turned) == [2] and turned[2][1] < 0.6 * turned[2][0]
+    assert error(Rn, tn)["rotation_deg_max"] < 0.5 and error(Rn, tn)["centre_m_max"] < 0.03
+    np.testing.assert_array_equal(np.delete(Rn, 2, 0), np.delete(R, 2, 0))
+    _, _, none = rig_init.turn_views(rig.K, R, t, obs, views, thr, 0.0, chest)
+    assert none == {}
+    Rr, tr, kept = rig_init.turn_views(rig.K, rig.R, rig.t, obs, views, thr, 0.6, chest)
+    assert kept == {}
+    np.testing.assert_array_equal(Rr, rig.R)
