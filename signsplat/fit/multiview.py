@@ -149,6 +149,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                             device=device)
         rms = hyp.view_px
         extra_log = {"camera_init": hyp.winner, "camera_init_turned": len(hyp.turned),
+                     "camera_init_doubtful": len(hyp.doubtful),
                      **{f"camera_init_{k}_px": float(x) for k, x in hyp.scores.items()}}
         log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
                  status, hyp.winner, ref, np.round(rms, 2).tolist())

@@ -74,6 +74,8 @@ class RigHypotheses:
     rigs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     #: views of the winner turned around (:func:`turn_views`): view -> (px before, after)
     turned: dict[int, tuple[float, float]] = field(default_factory=dict)
+    #: views left in place that the other side fits a little better: view -> (px, px there)
+    doubtful: dict[int, tuple[float, float]] = field(default_factory=dict)
 
 
 def placed_views(status: list[str]) -> list[int]:
@@ -833,7 +835,8 @@ def _view_error(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, ok: 
 
 def turn_views(K: np.ndarray, R: np.ndarray, t: np.ndarray, obs: np.ndarray, views: list[int],
                threshold_px: float, margin: float, centre: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[float, float]]]:
+               ) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[float, float]],
+                          dict[int, tuple[float, float]]]:
     """Views placed on the wrong side of the signer, turned around.
 
     Seen from behind with left and right labelled the other way round, a body's keypoints look
@@ -848,12 +851,16 @@ def turn_views(K: np.ndarray, R: np.ndarray, t: np.ndarray, obs: np.ndarray, vie
     Smaller corrections are left to the fit: on biased detections they lead towards the
     keypoints' optimum, away from the true rig (docs/fit.md).
 
-    obs (V,T,133,3): the observations the rig was estimated on. Returns (R, t, {view: (error
-    px before, after)})."""
+    obs (V,T,133,3): the observations the rig was estimated on. Returns (R, t, turned,
+    doubtful): ``turned`` {view: (error px before, after)}; ``doubtful`` {view: (error px,
+    error px on the other side)} for the views left where they are although the other side
+    fits their detections better, by less than the margin (``margin`` 0: neither is looked
+    for)."""
     R, t = np.array(R, float), np.array(t, float)
     T = obs.shape[1]
     uv, w = tracks(obs)
     turned: dict[int, tuple[float, float]] = {}
+    doubtful: dict[int, tuple[float, float]] = {}
     while margin > 0:
         P = projection_matrices(K, R, t)
         errs, pts = {}, {}
@@ -868,19 +875,22 @@ def turn_views(K: np.ndarray, R: np.ndarray, t: np.ndarray, obs: np.ndarray, vie
             pts[v] = (X.reshape(T, 133, 3), ok.reshape(T, 133), X[m], uv[v, m])
             errs[v] = _view_error(K[v], R[v], t[v], *pts[v][:2], obs[v])
         best = None  # (ratio, view, R, t, error)
+        doubtful = {}
         for v in errs:
             for start in ((R[v], t[v]), turned_around(R[v], t[v], centre)):
                 Rn, tn, _ = refine_view(K[v], *start, *pts[v][2:], threshold_px)
                 if rotation_angle_deg(Rn, R[v]) <= 90.0:
                     continue
                 e = _view_error(K[v], Rn, tn, *pts[v][:2], obs[v])
+                if e < errs[v]:
+                    doubtful[v] = (errs[v], min(e, doubtful.get(v, (0, np.inf))[1]))
                 if e < margin * errs[v] and (best is None or e / errs[v] < best[0]):
                     best = (e / errs[v], v, Rn, tn, e)
         if best is None:
-            return R, t, turned
+            break
         _, v, R[v], t[v], e = best
         turned[v] = (errs[v], e)
-    return R, t, turned
+    return R, t, turned, doubtful
 
 
 # --- the body: PnP of the rest body's head and torso ----------------------------------------
@@ -1086,11 +1096,16 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                              scores, np.full(V, np.nan))
     winner = choose_rig(scores, order, ic["prior_margin"])
     (R, t, status), px = tried[winner]
-    R, t, turned = turn_views(K, R, t, est, live, thr, ic["turn_margin"], chest)
+    R, t, turned, doubtful = turn_views(K, R, t, est, live, thr, ic["turn_margin"], chest)
     status = list(status)
     for v, (before, after) in turned.items():
         log.info("camera init: view %d turned around (it was placed facing the other side of "
                  "the signer): %.2f -> %.2f px from the other views' points", v, before, after)
+    for v, (here, there) in doubtful.items():
+        log.warning("camera init: view %d may face the signer from the other side: its "
+                    "detections lie %.2f px from the other views' points there and %.2f px "
+                    "where it is placed, not below init.turn_margin (%.2f) times that, so it "
+                    "stays; check its overlays", v, there, here, ic["turn_margin"])
     if turned:
         px = heldout_errors(K, R, t, uv_t, w_t, limit, robust_px=thr)
     for v in live:
@@ -1101,7 +1116,7 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
                         sorted(cands[v]), status[v])
             status[v] = "unplaced"
     log.info("camera init: winner %r, views %s", winner, status)
-    return RigHypotheses(R, t, status, winner, scores, px, rigs, turned)
+    return RigHypotheses(R, t, status, winner, scores, px, rigs, turned, doubtful)
 
 
 def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, height,
