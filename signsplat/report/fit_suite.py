@@ -48,6 +48,9 @@ FIT_SUITE = register_table(Table(
         "camera_init": "str the winning initial hypothesis (sfm, pnp, pnp_ransac, prior)",
         "camera_status": "str each view's camera source (comma-separated; unplaced views named)",
         "unplaced": "int32 views the initialisation could not place",
+        "doubtful": "int32 views left where they were placed although the other side of the "
+                    "signer fits their detections a little better (a warning in the fit log; "
+                    "fit_log.json camera_init_doubtful)",
         "fit_seconds": "float64 wall-clock seconds of the fit rule (Snakemake benchmark)",
         "pipeline_seconds": "float64 simulate + perception + fit seconds",
         "status": "str ok, or what failed",
@@ -114,7 +117,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
     row: dict = {"scene": scene, **_rig_summary(spec), "frames": int(spec.get("max_frames") or 0),
                  "keypoints": keypoints}
     row.update({c: float("nan") for c in _METRICS.values()})
-    row.update({"camera_init": "", "camera_status": "", "unplaced": 0})
+    row.update({"camera_init": "", "camera_status": "", "unplaced": 0, "doubtful": 0})
     fit_dir = root / scene / "fit"
     bench = root / "_benchmarks"
     row["fit_seconds"] = _bench(bench, scene, "fit_smplx")
@@ -136,6 +139,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
     row["camera_init"] = str(summary.get("log", {}).get("camera_init", ""))
     row["camera_status"] = ",".join(status)
     row["unplaced"] = int(sum(s == "unplaced" for s in status))
+    row["doubtful"] = int(summary.get("log", {}).get("camera_init_doubtful", 0))
     row["frames"] = int(sum(summary.get("provenance", {}).values()) or row["frames"])
     finite = np.isfinite([row[c] for c in ("camera_rotation_deg", "camera_centre_m",
                                            "body_mpjpe_mm")]).all()
@@ -148,7 +152,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
 def suite_table(rows: list[dict]) -> pd.DataFrame:
     """Rows -> the ``fit_suite`` table (columns in the documented order and types)."""
     df = pd.DataFrame(rows, columns=list(FIT_SUITE.columns))
-    for c in ("cameras", "frames", "unplaced"):
+    for c in ("cameras", "frames", "unplaced", "doubtful"):
         df[c] = df[c].astype(np.int32)
     df["meets_target"] = df["meets_target"].astype(bool)
     return df
@@ -227,12 +231,18 @@ def plot_suite(df: pd.DataFrame, path: str | Path) -> Path:
 
 
 def _unplaced_note(df: pd.DataFrame) -> str:
+    note = ""
     bad = df[df["unplaced"] > 0]
-    if not len(bad):
-        return ""
-    return (" Warning: cameras that could not be placed (left out of the fit and of the camera "
-            "errors): " + ", ".join(f"{r.scene} ({r.unplaced})" for r in bad.itertuples())
-            + ".")
+    if len(bad):
+        note += (" Warning: cameras that could not be placed (left out of the fit and of the "
+                 "camera errors): " + ", ".join(f"{r.scene} ({r.unplaced})"
+                                               for r in bad.itertuples()) + ".")
+    doubt = df[df["doubtful"] > 0] if "doubtful" in df else df.iloc[:0]
+    if len(doubt):
+        note += (" Warning: cameras that may face the signer from the other side (their "
+                 "detections fit there a little better; see the fit log): "
+                 + ", ".join(f"{r.scene} ({r.doubtful})" for r in doubt.itertuples()) + ".")
+    return note
 
 
 def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = None):
@@ -260,7 +270,7 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "body_seen_mpjpe_mm",
             "hands_mpjpe_mm",
             "body_pa_mpjpe_mm", "hands_pa_mpjpe_mm", "body_jitter", "camera_init", "unplaced",
-            "fit_seconds", "status", "meets_target"]
+            "doubtful", "fit_seconds", "status", "meets_target"]
     sec.add_table("per scene", df[[c for c in keep if c in df]])  # older tables lack some
     if figure is not None and Path(figure).exists():
         sec.figures.append(Figure(assets.copy(Path(figure)), "errors per scene",

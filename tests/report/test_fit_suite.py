@@ -18,7 +18,7 @@ SPEC2 = {"max_frames": 24, "cameras": {"count": 2, "layout": "arc", "arc_degrees
                                        "distance": 2.5}, "effects": []}
 
 
-def _fake(root, scene, rot, centre, body, status, fit_s=100.0):
+def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0):
     d = root / scene / "fit"
     d.mkdir(parents=True)
     rows = [("camera_rotation", "cameras", rot), ("camera_centre", "cameras", centre),
@@ -30,7 +30,8 @@ def _fake(root, scene, rot, centre, body, status, fit_s=100.0):
                                "seconds_total", "seconds_per_frame"])
     write_table(ev, d / "fit_eval.parquet", "fit_eval")
     (d / "fit_log.json").write_text(json.dumps({"camera_status": status,
-                                                "log": {"camera_init": "sfm"},
+                                                "log": {"camera_init": "sfm",
+                                                        "camera_init_doubtful": doubtful},
                                                 "provenance": {"fitted": 24}}))
     b = root / "_benchmarks" / scene
     b.mkdir(parents=True)
@@ -74,7 +75,7 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     from signsplat.report.html import Assets
 
     _fake(tmp_path, "good", 0.4, 0.01, 14.0, ["sfm"] * 3)
-    _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"])
+    _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"], doubtful=1)
     df = suite_table([scene_row(tmp_path, s, SPEC3) for s in ("good", "unplaced")])
     table = tmp_path / "bench" / "fit_suite.parquet"
     assets = Assets(tmp_path / "report")
@@ -84,6 +85,8 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     sec = fit_suite_section(table, assets, table.with_suffix(".svg"))
     assert "1 of 2 scenes with 3 or more cameras" in sec.intro
     assert "could not be placed" in sec.intro and "unplaced (1)" in sec.intro
+    assert "may face the signer from the other side" in sec.intro
+    assert sec.frames[0][1]["doubtful"].tolist() == [0, 1]
     assert "joints two or more cameras see, body MPJPE <= 25 mm on 2 of 2" in sec.intro
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
