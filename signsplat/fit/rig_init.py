@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import logging
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -72,7 +72,8 @@ class RigHypotheses:
     view_px: np.ndarray | None = None
     #: every whole-rig hypothesis tried: name -> (R, t)
     rigs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    #: views of the winner turned around (:func:`turn_views`): view -> (px before, after)
+    #: views turned around (:func:`turn_views`): view -> (px before, after); of the winner,
+    #: or with :func:`place_cameras` of every placement that led to it
     turned: dict[int, tuple[float, float]] = field(default_factory=dict)
     #: views left in place that the other side fits a little better: view -> (px, px there)
     doubtful: dict[int, tuple[float, float]] = field(default_factory=dict)
@@ -1131,10 +1132,13 @@ def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width,
       be exchanged (:func:`side_swaps`), when they are more than 2 % of all.
 
     Same arguments as :func:`initial_rig`. (The fit finds the exchanged view-frames again from
-    the cameras returned and exchanges them back in what it fits.)"""
+    the cameras returned and exchanges them back in what it fits.) The result's ``turned``
+    holds the views turned in the placements that led to it: a turn in the first placement
+    can decide the path to the last, which then needs none."""
     hyp = initial_rig(kp_neutral, obs, K, width, height, cfg)
     if not cfg["repair_sides"]:
         return hyp
+    turned = dict(hyp.turned)
     lost = [v for v, s in enumerate(hyp.status) if s == "unplaced"]
     if lost:
         whole = np.zeros(obs.shape[:2], bool)
@@ -1145,10 +1149,11 @@ def place_cameras(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width,
             log.info("camera init: view(s) %s placed with their left and right exchanged",
                      [v for v in lost if retry.status[v] != "unplaced"])
             hyp, obs = retry, flipped
+            turned.update(retry.turned)
     swaps = side_swaps(np.asarray(K, float), hyp.R, hyp.t, obs,
                        inlier_threshold_px(cfg["init"], height), views=placed_views(hyp.status))
-    if swaps.sum() <= 0.02 * swaps.size:
-        return hyp
-    log.info("camera init: left and right exchanged in %d view-frames; placing the cameras "
-             "again without them", int(swaps.sum()))
-    return initial_rig(kp_neutral, exchange_sides(obs, swaps), K, width, height, cfg)
+    if swaps.sum() > 0.02 * swaps.size:
+        log.info("camera init: left and right exchanged in %d view-frames; placing the cameras "
+                 "again without them", int(swaps.sum()))
+        hyp = initial_rig(kp_neutral, exchange_sides(obs, swaps), K, width, height, cfg)
+    return replace(hyp, turned={**turned, **hyp.turned})

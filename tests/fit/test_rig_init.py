@@ -394,3 +394,21 @@ def test_a_view_placed_on_the_wrong_side_of_the_signer_is_turned_around(kpm, mot
     Rs, _, stay, doubtful = rig_init.turn_views(rig.K, R, t, obs, views, thr, ratio / 2, chest)
     assert stay == {} and min(doubtful, key=lambda v: doubtful[v][1] / doubtful[v][0]) == 2
     np.testing.assert_array_equal(Rs, R)
+
+
+def test_place_cameras_reports_the_views_turned_on_the_way(monkeypatch):
+    """A view turned in the first placement changes what follows (here a view left unplaced,
+    then placed with its sides exchanged, with no turn of its own): `place_cameras` still
+    reports the turn, which the fit log counts."""
+    V, T = 4, 3
+    R, t = np.tile(np.eye(3), (V, 1, 1)), np.zeros((V, 3))
+    first = rig_init.RigHypotheses(R, t, ["sfm", "sfm", "unplaced", "sfm"], "sfm",
+                                   turned={1: (7.0, 3.5)})
+    retry = rig_init.RigHypotheses(R, t, ["sfm"] * 4, "sfm")
+    calls = iter([first, retry])
+    monkeypatch.setattr(rig_init, "initial_rig", lambda *a: next(calls))
+    monkeypatch.setattr(rig_init, "side_swaps", lambda *a, **k: np.zeros((V, T), bool))
+    obs = np.zeros((V, T, 133, 3))
+    hyp = rig_init.place_cameras(None, obs, np.tile(np.eye(3), (V, 1, 1)), [64] * V, [64] * V,
+                                 _cfg()["multiview"])
+    assert hyp.status == ["sfm"] * 4 and hyp.turned == {1: (7.0, 3.5)}
