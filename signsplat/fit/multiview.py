@@ -150,6 +150,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         rms = hyp.view_px
         extra_log = {"camera_init": hyp.winner, "camera_init_turned": len(hyp.turned),
                      "camera_init_doubtful": len(hyp.doubtful),
+                     "camera_init_turned_views": sorted(hyp.turned),
+                     "camera_init_doubtful_views": sorted(hyp.doubtful),
                      **{f"camera_init_{k}_px": float(x) for k, x in hyp.scores.items()}}
         log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
                  status, hyp.winner, ref, np.round(rms, 2).tolist())

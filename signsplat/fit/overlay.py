@@ -94,11 +94,30 @@ def pick_frames(frames: np.ndarray, provenance: np.ndarray, count: int) -> list[
     return [int(idx[i]) for i in np.unique(pos)]
 
 
+def overlay_views(num_views: int, max_views: int, flagged=()) -> list[int]:
+    """The views (ascending) that get overlays: the ``flagged`` ones first (views the camera
+    initialisation left unplaced, turned around or doubted), then the others in order, at
+    most ``max_views``."""
+    first = [v for v in dict.fromkeys(int(v) for v in flagged) if 0 <= v < num_views]
+    rest = [v for v in range(num_views) if v not in first]
+    return sorted((first + rest)[:max_views])
+
+
+def flagged_views(result: FitResult) -> list[int]:
+    """The views a user should look at first: unplaced, then turned around, then doubted by
+    the camera initialisation (the fit log's ``camera_init_turned_views`` and
+    ``camera_init_doubtful_views``)."""
+    unplaced = [v for v, s in enumerate(result.camera_status) if s == "unplaced"]
+    return unplaced + list(result.log.get("camera_init_turned_views", [])) \
+        + list(result.log.get("camera_init_doubtful_views", []))
+
+
 def write_overlays(kpm: KeypointModel, result: FitResult, obs: np.ndarray, frames_path,
                    out_dir: Path, cfg: dict, view: int | None = None) -> list[Path]:
     """Overlay PNGs ``overlays/view{v:02d}_frame{f:04d}.png`` in ``out_dir`` of a few fitted
     frames per view (config ``fit.overlay``), drawn on the images of the frames table
-    ``frames_path``; ``view``: the source camera of a one-view fit."""
+    ``frames_path``; ``view``: the source camera of a one-view fit. With more views than
+    ``max_views``, the flagged ones (:func:`flagged_views`) are among them."""
     oc = cfg["overlay"]
     (out_dir / "overlays").mkdir(parents=True, exist_ok=True)
     df = read_frames(frames_path)
@@ -115,7 +134,7 @@ def write_overlays(kpm: KeypointModel, result: FitResult, obs: np.ndarray, frame
     uv = uv.numpy()
     uv[z.numpy() <= 0.05] = np.nan
     paths = []
-    for v in range(min(rig.num_views, oc["max_views"])):
+    for v in overlay_views(rig.num_views, oc["max_views"], flagged_views(result)):
         src_view = v if view is None else view
         for i, p in enumerate(pos):
             f = int(result.frames[p])

@@ -226,6 +226,22 @@ def _write_inputs(tmp_path, kpm, T=3, V=2):
     return tmp_path
 
 
+def test_overlays_show_the_views_the_camera_initialisation_flags():
+    """With more views than `fit.overlay.max_views`, the views left unplaced, turned around or
+    doubted (the ones a warning tells the user to check) are among those drawn."""
+    from signsplat.fit.overlay import flagged_views, overlay_views
+    from signsplat.fit.sequence import FitResult
+
+    assert overlay_views(8, 6) == [0, 1, 2, 3, 4, 5]
+    assert overlay_views(8, 3, [7, 6, 7]) == [0, 6, 7]
+    assert overlay_views(3, 6, [2, 9]) == [0, 1, 2]
+    result = FitResult(params={}, rig=None, frames=np.arange(2), provenance=None,
+                       num_keypoints=None, camera_status=["sfm"] * 6 + ["unplaced", "sfm"],
+                       log={"camera_init_turned_views": [], "camera_init_doubtful_views": [5]})
+    assert flagged_views(result) == [6, 5]
+    assert overlay_views(8, 2, flagged_views(result)) == [5, 6]
+
+
 def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
     d = _write_inputs(tmp_path, kpm)
     cfg = FAST_MV | {"overlay": {"frames_per_view": 1}, "keypoints": "ground_truth"}
