@@ -795,9 +795,10 @@ def refine_view(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, uv: 
         rvec, tvec = cv2.solvePnPRefineLM(obj[keep], img[keep], K, None, rvec, tvec)
         proj, front = project_points(K, cv2.Rodrigues(rvec)[0], tvec.reshape(3), X)
         err = np.where(front, np.linalg.norm(proj - uv, axis=-1), np.inf)
-        if (err <= 3 * threshold_px).sum() < 12:
+        near = err <= 3 * threshold_px
+        if near.sum() < 12:
             break
-        keep = err <= 3 * threshold_px
+        keep = near
     return cv2.Rodrigues(rvec)[0], tvec.reshape(3), float(np.median(err))
 
 

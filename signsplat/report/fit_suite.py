@@ -230,7 +230,7 @@ def plot_suite(df: pd.DataFrame, path: str | Path) -> Path:
     return path
 
 
-def _unplaced_note(df: pd.DataFrame) -> str:
+def _camera_warnings(df: pd.DataFrame) -> str:
     note = ""
     bad = df[df["unplaced"] > 0]
     if len(bad):
@@ -265,7 +265,7 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
                   + ("" if s["body_seen_within_target"] is None else
                      f" Over the body joints two or more cameras see, body MPJPE <= 25 mm on "
                      f"{s['body_seen_within_target']} of {s['multi_camera_scenes']}.")
-                  + _unplaced_note(df))
+                  + _camera_warnings(df))
     keep = ["scene", "cameras", "arc_deg", "distance_m", "image", "frames", "effects",
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "body_seen_mpjpe_mm",
             "hands_mpjpe_mm",
