@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -40,6 +41,7 @@ from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_u
 from signsplat.fit.flow import flow_targets
 from signsplat.fit.rig_init import (PNP_KEYPOINTS, exchange_sides, inlier_threshold_px,
                                     place_cameras, placed_views, side_swaps)
+from signsplat.fit.side_check import SideCheck, check_side
 from signsplat.fit.solver import (Stage, make_problem, rest_body_pose, run_stage,
                                   run_warm_started)
 from signsplat.geometry.align import umeyama
@@ -85,6 +87,57 @@ def initial_root(kpm: KeypointModel, rig: Rig, obs: np.ndarray, T: int, dtype=to
     return {"global_orient": np.tile(rotvec, (T, 1)), "transl": np.tile(transl, (T, 1))}
 
 
+def _exchange_back(obs: np.ndarray, rig: Rig, views: list[int], mv: dict, height,
+                   extra_log: dict) -> np.ndarray:
+    """``obs`` with left and right exchanged back in the view-frames whose detections match
+    the other views' points only that way round (config ``repair_sides``; counted in
+    ``extra_log['side_swaps']``)."""
+    if not mv["repair_sides"]:
+        return obs
+    swaps = side_swaps(rig.K, rig.R, rig.t, obs, inlier_threshold_px(mv["init"], height),
+                       views=views)
+    if swaps.any():
+        obs = exchange_sides(obs, swaps)
+        log.info("left and right exchanged back in %d view-frames (views %s)",
+                 int(swaps.sum()), sorted(set(np.nonzero(swaps)[0].tolist())))
+    extra_log["side_swaps"] = int(swaps.sum())
+    return obs
+
+
+def _run_stages(problem, params: FitParams, cams: CameraParams, stages: list[Stage],
+                chunk: int, fitted: np.ndarray, solved: set[str], history: dict) -> None:
+    """Run ``stages`` in order (Adam warm-started per chunk, or jointly); ``solved`` gathers
+    the parameter groups solved so far (warm starts copy only the others)."""
+    for stage in stages:
+        ts = time.perf_counter()
+        if stage.warm_start:
+            history[stage.name] = run_warm_started(problem, params, cams, stage, chunk, fitted,
+                                                   solved)
+        else:
+            history[stage.name] = run_stage(problem, params, cams, stage)[-1:]
+        solved |= set(stage.groups)
+        log.info("stage %s: %.1f s, final loss %s", stage.name, time.perf_counter() - ts,
+                 np.round(history[stage.name], 3).tolist())
+
+
+def _mask_sides(kpm: KeypointModel, params: FitParams, rig: Rig, obs: np.ndarray,
+                masks: np.ndarray, fitted: np.ndarray, views: list[int], threshold_px: float,
+                dtype, device, max_frames: int = 24) -> dict[int, SideCheck]:
+    """:func:`signsplat.fit.side_check.check_side` of each of ``views`` on the body fitted so
+    far, over at most ``max_frames`` evenly spaced fitted frames."""
+    idx = np.nonzero(fitted)[0]
+    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).astype(int))]
+    with torch.no_grad():
+        inputs = params.model_inputs(torch.as_tensor(idx, device=device))
+        _, kp, out = kpm(full=True, **inputs)
+    verts = out.vertices.double().cpu().numpy()
+    kp = kp.double().cpu().numpy()
+    faces = kpm.model.faces.cpu().numpy()
+    centre = kp[:, [5, 6]].mean((0, 1))  # the chest: between the shoulders
+    return {v: check_side(rig.K[v], rig.R[v], rig.t[v], verts, faces, kp, masks[v, idx],
+                          obs[v, idx], centre, threshold_px) for v in views}
+
+
 def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np.ndarray,
                   width, height, cfg: dict, device: torch.device | str = "cpu",
                   dtype=torch.float32, masks: np.ndarray | None = None,
@@ -121,8 +174,8 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         rms = np.full(V, np.nan)
         ref = -1  # no reference camera: the calibration fixes the world frame
         extra_log = {"camera_init": "calibrated"}
-        cams = CameraParams(rig0, fixed=list(range(V)), refine_focal=False, dtype=dtype,
-                            device=device)
+        cam_args = {"fixed": list(range(V)), "refine_focal": False}
+        doubtful = []
         init.update(initial_root(kpm, rig0, obs, T, dtype, device))
         log.info("cameras: calibrated extrinsics, held fixed; body placed at %s m",
                  np.round(init["transl"][0], 3).tolist())
@@ -143,10 +196,12 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
             fitted, count = seq.fitted_mask(obs, cfg["min_keypoints"])
             if not fitted.any():
                 raise ValueError("no frame has enough keypoints in the placed views")
-        ref = max(solved, key=lambda v: views_obs[v])
-        fixed = [v for v in range(V) if v == ref or v not in solved]
-        cams = CameraParams(rig0, fixed=fixed, refine_focal=mv["refine_focal"], dtype=dtype,
-                            device=device)
+        # the reference holds the world frame: not a view that may face the other side
+        sure = [v for v in solved if v not in hyp.doubtful] or solved
+        ref = max(sure, key=lambda v: views_obs[v])
+        cam_args = {"fixed": [v for v in range(V) if v == ref or v not in solved],
+                    "refine_focal": mv["refine_focal"]}
+        doubtful = sorted(hyp.doubtful)
         rms = hyp.view_px
         extra_log = {"camera_init": hyp.winner, "camera_init_turned": len(hyp.turned),
                      "camera_init_doubtful": len(hyp.doubtful),
@@ -155,25 +210,13 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                      **{f"camera_init_{k}_px": float(x) for k, x in hyp.scores.items()}}
         log.info("cameras initialised: %s (winner %s, reference view %d, held-out px %s)",
                  status, hyp.winner, ref, np.round(rms, 2).tolist())
-    if mv["repair_sides"]:
-        swaps = side_swaps(rig0.K, rig0.R, rig0.t, obs, inlier_threshold_px(mv["init"], height),
-                           views=solved)
-        if swaps.any():
-            obs = exchange_sides(obs, swaps)
-            log.info("left and right exchanged back in %d view-frames (views %s)",
-                     int(swaps.sum()), sorted(set(np.nonzero(swaps)[0].tolist())))
-        extra_log["side_swaps"] = int(swaps.sum())
+    fit_obs = _exchange_back(obs, rig0, solved, mv, height, extra_log)
     t_init = time.perf_counter()
 
-    params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
-                       device=device, init=init)
-    solved_R = rig0.R[solved]
-    up = rig_up_direction(solved_R) if mv["level_cameras"] else None
-    log.info("world vertical for the upright prior: %s",
-             "body frame +y" if up is None else np.round(up, 4).tolist())
     weights = {"upright": mv["upright_weight"], "camera_anchor": mv["camera_anchor_weight"]}
+    stages = [Stage.from_config(s) for s in mv["stages"]]
     flow_args = {}
-    if any(Stage.from_config(s).uses_flow for s in mv["stages"]):
+    if any(stage.uses_flow for stage in stages):
         if images is None or masks is None:
             raise ValueError("a stage weights the flow term: it needs the images and the "
                              "person masks")
@@ -184,22 +227,48 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         log.info("optical flow: %d frame pairs (gaps %s), %.1f s", flow.num_pairs,
                  fc["gaps"], time.perf_counter() - tf)
         flow_args = {"flow": flow}
-    problem = make_problem(kpm, obs, cfg, frames, weights=weights,
-                           dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                           masks=masks, **flow_args)
-    history = {}
-    solved: set[str] = set()
-    for st_cfg in mv["stages"]:
-        stage = Stage.from_config(st_cfg)
-        ts = time.perf_counter()
-        if stage.warm_start:
-            history[stage.name] = run_warm_started(problem, params, cams, stage,
-                                                   mv["chunk"], fitted, solved)
-        else:
-            history[stage.name] = run_stage(problem, params, cams, stage)[-1:]
-        solved |= set(stage.groups)
-        log.info("stage %s: %.1f s, final loss %s", stage.name, time.perf_counter() - ts,
-                 np.round(history[stage.name], 3).tolist())
+    # the stages before the first with mask terms fit the body on the keypoints alone
+    first_mask = next((i for i, st in enumerate(stages) if st.uses_silhouette), len(stages))
+    margin = mv["init"]["mask_side_margin"]
+    check = doubtful if masks is not None and margin is not None else []
+    while True:
+        params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
+                           device=device, init=init)
+        cams = CameraParams(rig0, **cam_args, dtype=dtype, device=device)
+        up = rig_up_direction(rig0.R[solved]) if mv["level_cameras"] else None
+        log.info("world vertical for the upright prior: %s",
+                 "body frame +y" if up is None else np.round(up, 4).tolist())
+        problem = make_problem(kpm, fit_obs, cfg, frames, weights=weights,
+                               dtype=dtype, device=device, up=up, level_cameras=up is not None,
+                               masks=masks, **flow_args)
+        history: dict[str, list] = {}
+        groups_solved: set[str] = set()
+        _run_stages(problem, params, cams, stages[:first_mask], mv["chunk"], fitted,
+                    groups_solved, history)
+        if check:
+            sides = _mask_sides(kpm, params, cams.to_rig(), fit_obs, masks, fitted, check,
+                                inlier_threshold_px(mv["init"], height), dtype, device)
+            check = []  # once: a second placement is not doubted again
+            extra_log["camera_mask_sides"] = {
+                str(v): {"iou_here": round(c.iou_here, 4), "iou_there": round(c.iou_there, 4),
+                         "turned": c.turn(margin)} for v, c in sides.items()}
+            turn = {v: c for v, c in sides.items() if c.turn(margin)}
+            for v, c in sides.items():
+                log.log(logging.WARNING if v in turn else logging.INFO,
+                        "camera side by the masks: view %d's fitted outline overlaps its masks "
+                        "%.3f (mean IoU) where it is placed and %.3f turned around: %s", v,
+                        c.iou_here, c.iou_there,
+                        "turned around, fitting again" if v in turn else "it stays")
+            if turn:
+                R, t = rig0.R.copy(), rig0.t.copy()
+                for v, c in turn.items():
+                    R[v], t[v] = c.R, c.t
+                rig0 = replace(rig0, R=R, t=t)
+                fit_obs = _exchange_back(obs, rig0, solved, mv, height, extra_log)
+                continue
+        _run_stages(problem, params, cams, stages[first_mask:], mv["chunk"], fitted,
+                    groups_solved, history)
+        break
     raw = params.export()
     filled, prov = seq.fill_gaps(raw, fitted)
     t1 = time.perf_counter()

@@ -1107,7 +1107,9 @@ def initial_rig(kp_neutral: np.ndarray, obs: np.ndarray, K: np.ndarray, width, h
         log.warning("camera init: view %d may face the signer from the other side: its "
                     "detections lie %.2f px from the other views' points there and %.2f px "
                     "where it is placed, not below init.turn_margin (%.2f) times that, so it "
-                    "stays; check its overlays", v, there, here, ic["turn_margin"])
+                    "stays, unless its person masks decide otherwise once the body is fitted "
+                    "(init.mask_side_margin); check its overlays", v, there, here,
+                    ic["turn_margin"])
     if turned:
         px = heldout_errors(K, R, t, uv_t, w_t, limit, robust_px=thr)
     for v in live:

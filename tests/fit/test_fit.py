@@ -555,3 +555,44 @@ def test_calibrated_camera_init_needs_real_extrinsics(tmp_path, kpm, proxy_body_
                         str(d / "ok")]) == 0
     out = read_table(d / "ok" / "cameras_fit.parquet", "cameras")
     np.testing.assert_allclose(np.stack(out["R"]), np.stack(cams["R"]), atol=1e-6)
+
+
+def test_a_doubtful_view_is_turned_by_its_masks(kpm, monkeypatch):
+    """A camera that the initialisation placed on the wrong side of the signer, doubtful, on a
+    ring of six: the body fitted on the keypoints, its outline against the view's masks turns
+    the camera round and the fit starts again (`init.mask_side_margin`); without the check it
+    stays wrong."""
+    from signsplat.fit import multiview
+    from signsplat.fit.rig_init import RigHypotheses, turned_around
+    from signsplat.fit.side_check import silhouette
+
+    T, V, size = 4, 6, 128
+    gt = random_motion(T, seed=4)
+    gt["body_pose"][:, 3 * 16:3 * 17] += [0.0, 0.0, 0.6]  # right arm raised: asymmetric
+    rig = synthetic_rig(V, arc=300, size=size)
+    _, kp, out = kpm(full=True, **{k: torch.as_tensor(v, dtype=torch.float32)
+                                    for k, v in gt.items() if k not in ("leye_pose", "reye_pose")})
+    chest = kp[:, [5, 6]].double().mean((0, 1)).numpy()
+    back = 3  # placed behind the signer; the truth sees the front at 30 degrees
+    obs = observe(kpm, gt, rig)
+    verts, faces = out.vertices.detach().double().numpy(), kpm.model.faces.numpy()
+    masks = np.stack([np.stack([silhouette(rig.K[v], rig.R[v], rig.t[v], x, faces, size, size)
+                                for x in verts]) for v in range(V)])
+    placed_R, placed_t = rig.R.copy(), rig.t.copy()
+    placed_R[back], placed_t[back] = turned_around(rig.R[back], rig.t[back], chest)
+    monkeypatch.setattr(multiview, "place_cameras", lambda *a: RigHypotheses(
+        placed_R, placed_t, ["sfm"] * V, "sfm", {"sfm": 2.0}, np.full(V, 2.0),
+        doubtful={back: (4.0, 3.0)}))
+    stages = FAST_MV["multiview"]["stages"] + [
+        {"name": "silhouette", "iterations": 5, "lr": 0.001, "groups": ["root", "body"],
+         "silhouette": {"inside": 300, "cover": 300}}]
+    fits = {}
+    for margin in (0.1, None):
+        cfg = _cfg({"multiview": {"stages": stages, "init": {"mask_side_margin": margin}}})
+        fits[margin] = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg,
+                                     masks=masks)
+    side = fits[0.1].log["camera_mask_sides"][str(back)]
+    assert side["turned"] and side["iou_there"] > side["iou_here"] + 0.1
+    assert fit_eval.camera_errors(fits[0.1].rig, rig)["rotation_deg_max"] < 10.0
+    assert "camera_mask_sides" not in fits[None].log
+    assert fit_eval.camera_errors(fits[None].rig, rig)["rotation_deg_max"] > 90.0

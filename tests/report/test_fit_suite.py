@@ -18,7 +18,7 @@ SPEC2 = {"max_frames": 24, "cameras": {"count": 2, "layout": "arc", "arc_degrees
                                        "distance": 2.5}, "effects": []}
 
 
-def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0):
+def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0, sides=None):
     d = root / scene / "fit"
     d.mkdir(parents=True)
     rows = [("camera_rotation", "cameras", rot), ("camera_centre", "cameras", centre),
@@ -31,7 +31,8 @@ def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0):
     write_table(ev, d / "fit_eval.parquet", "fit_eval")
     (d / "fit_log.json").write_text(json.dumps({"camera_status": status,
                                                 "log": {"camera_init": "sfm",
-                                                        "camera_init_doubtful": doubtful},
+                                                        "camera_init_doubtful": doubtful,
+                                                        "camera_mask_sides": sides or {}},
                                                 "provenance": {"fitted": 24}}))
     b = root / "_benchmarks" / scene
     b.mkdir(parents=True)
@@ -75,7 +76,9 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     from signsplat.report.html import Assets
 
     _fake(tmp_path, "good", 0.4, 0.01, 14.0, ["sfm"] * 3)
-    _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"], doubtful=1)
+    _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"], doubtful=2,
+          sides={"0": {"iou_here": 0.2, "iou_there": 0.8, "turned": True},
+                 "2": {"iou_here": 0.7, "iou_there": 0.5, "turned": False}})
     df = suite_table([scene_row(tmp_path, s, SPEC3) for s in ("good", "unplaced")])
     table = tmp_path / "bench" / "fit_suite.parquet"
     assets = Assets(tmp_path / "report")
@@ -86,7 +89,9 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     assert "1 of 2 scenes with 3 or more cameras" in sec.intro
     assert "could not be placed" in sec.intro and "unplaced (1)" in sec.intro
     assert "may face the signer from the other side" in sec.intro
-    assert sec.frames[0][1]["doubtful"].tolist() == [0, 1]
+    assert sec.frames[0][1]["doubtful"].tolist() == [0, 2]
+    assert sec.frames[0][1]["mask_turned"].tolist() == [0, 1]
+    assert "turned around by their person masks: unplaced (1)" in sec.intro
     assert "joints two or more cameras see, body MPJPE <= 25 mm on 2 of 2" in sec.intro
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
