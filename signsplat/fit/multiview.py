@@ -5,11 +5,14 @@
    views, from PnP of the rest body and from the configured arc prior, scored on held-out
    keypoints (:mod:`signsplat.fit.rig_init`). This defines the world frame: the rest body's
    frame at the first frames (y up, the signer facing +z). A view no hypothesis places is
-   reported ``unplaced``: its keypoints are left out and its camera is held fixed.
-2. Gauge: the reference camera (the placed view with the most observations) is held fixed,
-   which removes the 6-DoF world-frame freedom. Scale: with free extrinsics a uniform body
-   scale is unobservable (the proxy's beta 0 is one), so the shape prior sets it; the
-   evaluation's similarity alignment absorbs it.
+   reported ``unplaced``: its keypoints are left out and its camera is held fixed. A view
+   that may face the signer from the other side (``doubtful``) is decided by its person masks
+   once the stages without mask terms have fitted the body (:mod:`signsplat.fit.side_check`,
+   config ``init.mask_side_margin``); when it is turned around, the stages start again.
+2. Gauge: the reference camera (the placed, not doubtful view with the most observations) is
+   held fixed, which removes the 6-DoF world-frame freedom. Scale: with free extrinsics a
+   uniform body scale is unobservable (the proxy's beta 0 is one), so the shape prior sets it;
+   the evaluation's similarity alignment absorbs it.
    With ``camera_init: calibrated`` (a calibrated studio) the calibration table's extrinsics
    are used and held fixed instead (the calibration's world frame; no camera is solved), and
    the body starts where the head/torso keypoints triangulate (:func:`initial_root`).
