@@ -103,11 +103,10 @@ def check_side(K: np.ndarray, R: np.ndarray, t: np.ndarray, vertices: np.ndarray
                obs_v: np.ndarray, centre: np.ndarray, threshold_px: float) -> SideCheck:
     """One view's side by its masks: the fitted body (``vertices (T,N,3)``, ``keypoints
     (T,133,3)``) against the view's ``masks (T,H,W)`` where the camera ``K, R, t`` is and at
-    each of :func:`other_side_poses`."""
+    each of :func:`other_side_poses` (the best of them; NaN overlaps when every mask is
+    empty, and then the view stays)."""
     here = mean_iou(K, R, t, vertices, faces, masks)
-    best = SideCheck(here, -np.inf, R, t)
-    for Rn, tn in other_side_poses(K, R, t, keypoints, obs_v, centre, threshold_px):
-        iou = mean_iou(K, Rn, tn, vertices, faces, masks)
-        if iou > best.iou_there:
-            best = SideCheck(here, iou, Rn, tn)
-    return best
+    there = [(mean_iou(K, Rn, tn, vertices, faces, masks), Rn, tn)
+             for Rn, tn in other_side_poses(K, R, t, keypoints, obs_v, centre, threshold_px)]
+    iou, Rn, tn = max(there, key=lambda c: -np.inf if np.isnan(c[0]) else c[0])
+    return SideCheck(here, iou, Rn, tn)

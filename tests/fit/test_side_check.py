@@ -67,4 +67,5 @@ def test_empty_masks_give_no_verdict(back_view):
     assert np.isnan(mean_iou(b["K"], b["R"], b["t"], b["verts"], b["faces"], empty))
     check = check_side(b["K"], *b["front"], b["verts"], b["faces"], b["kp"], empty, b["obs"],
                        b["centre"], 2.0)
+    assert np.isnan(check.iou_here) and np.isnan(check.iou_there)
     assert not check.turn(0.1)  # NaN compares false: the view stays
