@@ -139,6 +139,16 @@ def read_frames(path: str | os.PathLike) -> pd.DataFrame:
     return df
 
 
+def mask_files(path: str | os.PathLike) -> dict[tuple[int, int], Path]:
+    """``{(view, frame): PNG}`` of a perception ``masks`` table or a simulator ``frames``
+    table (both have ``view``, ``frame`` and ``mask``, a path relative to the table's folder);
+    rows with an empty path are left out."""
+    path = Path(path)
+    df = _read_columns(path, ["view", "frame", "mask"])
+    return {(int(v), int(f)): path.parent / rel for v, f, rel in df.itertuples(index=False)
+            if rel}
+
+
 def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> np.ndarray:
     """Person masks of every view and frame -> (V,T,H,W) bool.
 
@@ -147,8 +157,6 @@ def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> 
     fit's frame numbers; views are 0..V-1 with the sizes ``widths``/``heights (V,)``. A frame
     without a row (or an empty path) gets an empty mask, which the silhouette terms skip.
     """
-    path = Path(path)
-    df = _read_columns(path, ["view", "frame", "mask"])
     W, H = int(np.max(widths)), int(np.max(heights))
     if len(set(np.asarray(widths).tolist())) > 1 or len(set(np.asarray(heights).tolist())) > 1:
         raise InputError(f"{path}: the silhouette terms need one image size for all views, "
@@ -156,16 +164,16 @@ def read_masks(path: str | os.PathLike, frames: np.ndarray, widths, heights) -> 
     V = len(widths)
     index = {int(f): i for i, f in enumerate(frames)}
     out = np.zeros((V, len(frames), H, W), bool)
-    for view, frame, rel in df.itertuples(index=False):
-        if not 0 <= int(view) < V:
-            raise InputError(f"{path}: view {int(view)} but the rig has {V} cameras")
-        if int(frame) not in index or not rel:
+    for (view, frame), png in mask_files(path).items():
+        if not 0 <= view < V:
+            raise InputError(f"{path}: view {view} but the rig has {V} cameras")
+        if frame not in index:
             continue
-        m = read_mask(path.parent / rel)
+        m = read_mask(png)
         if m.shape != (H, W):
-            raise InputError(f"{path.parent / rel}: mask is {m.shape[1]}x{m.shape[0]}, the "
-                             f"camera's image {W}x{H}")
-        out[int(view), index[int(frame)]] = m
+            raise InputError(f"{png}: mask is {m.shape[1]}x{m.shape[0]}, the camera's image "
+                             f"{W}x{H}")
+        out[view, index[frame]] = m
     return out
 
 

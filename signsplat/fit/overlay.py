@@ -2,23 +2,30 @@
 
 Drawn per image: mesh vertices as faint grey dots, the fitted COCO-WholeBody skeleton (body
 green, left hand blue, right hand red, face yellow dots) and the input keypoints as small white
-crosses, so misfits show as offsets between crosses and skeleton.
+crosses, so misfits show as offsets between crosses and skeleton. With the person masks, their
+outline (magenta) and the fitted body's outline (cyan) too: a camera on the wrong side of the
+signer shows as outlines that do not match.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from signsplat.errors import InputError
 from signsplat.fit.bodyfit import KeypointModel, keypoints_of
 from signsplat.fit.cameras import project
-from signsplat.fit.data import read_frames
+from signsplat.fit.data import mask_files, read_frames
+from signsplat.fit.side_check import silhouette
 from signsplat.fit.sequence import FitResult
 from signsplat.io.atomic import atomic_path
-from signsplat.io.images import read_rgb
+from signsplat.io.images import read_mask, read_rgb
+
+log = logging.getLogger(__name__)
 
 BODY_EDGES = ((0, 1), (0, 2), (1, 3), (2, 4), (5, 6), (5, 7), (7, 9), (6, 8), (8, 10), (5, 11),
               (6, 12), (11, 12), (11, 13), (13, 15), (12, 14), (14, 16))
@@ -39,18 +46,29 @@ LEFT_HAND_EDGES = tuple(_hand_edges(91))
 RIGHT_HAND_EDGES = tuple(_hand_edges(112))
 
 COLORS_BGR = {"body": (60, 200, 60), "left": (230, 120, 40), "right": (40, 40, 230),
-              "face": (0, 220, 240), "mesh": (170, 170, 170), "obs": (255, 255, 255)}
+              "face": (0, 220, 240), "mesh": (170, 170, 170), "obs": (255, 255, 255),
+              "mask": (255, 0, 255), "outline": (255, 255, 0)}
 
 
 def draw_overlay(image_rgb: np.ndarray, uv_kp: np.ndarray, obs: np.ndarray | None = None,
-                 uv_mesh: np.ndarray | None = None, scale: int = 2) -> np.ndarray:
+                 uv_mesh: np.ndarray | None = None, scale: int = 2,
+                 mask: np.ndarray | None = None, outline: np.ndarray | None = None
+                 ) -> np.ndarray:
     """Draw onto a copy of ``image_rgb (H,W,3) uint8``; returns BGR uint8 (H*scale, W*scale, 3).
 
     uv_kp (133,2) projected fitted keypoints; obs (133,3) input keypoints (score > 0 drawn);
-    uv_mesh (N,2) projected vertices (subsampled by the caller). Non-finite points are skipped.
+    uv_mesh (N,2) projected vertices (subsampled by the caller); mask and outline (H,W) bool:
+    the person mask and the fitted body's silhouette, each drawn as its outline. Non-finite
+    points are skipped.
     """
     img = cv2.cvtColor(np.ascontiguousarray(image_rgb), cv2.COLOR_RGB2BGR)
     img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+    for region, color in ((mask, "mask"), (outline, "outline")):
+        if region is not None:
+            big = cv2.resize(region.astype(np.uint8), None, fx=scale, fy=scale,
+                             interpolation=cv2.INTER_NEAREST)
+            contours, _ = cv2.findContours(big, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(img, contours, -1, COLORS_BGR[color], 1)
 
     def p(xy):
         return (int(round((xy[0] + 0.5) * scale - 0.5)), int(round((xy[1] + 0.5) * scale - 0.5)))
@@ -112,15 +130,40 @@ def flagged_views(result: FitResult) -> list[int]:
         + list(result.log.get("camera_init_doubtful_views", []))
 
 
+def _mask_for(png: Path | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """The person mask at ``png`` when it is readable and of the image's ``shape (H,W)``;
+    else None (with a warning: the overlay goes without the outlines)."""
+    if png is None:
+        return None
+    try:
+        mask = read_mask(png)
+    except InputError as exc:
+        log.warning("overlay without the masks' outlines: %s", exc)
+        return None
+    if mask.shape != shape:
+        log.warning("overlay without the masks' outlines: %s is %dx%d, the image %dx%d", png,
+                    mask.shape[1], mask.shape[0], shape[1], shape[0])
+        return None
+    return mask
+
+
 def write_overlays(kpm: KeypointModel, result: FitResult, obs: np.ndarray, frames_path,
-                   out_dir: Path, cfg: dict, view: int | None = None) -> list[Path]:
+                   out_dir: Path, cfg: dict, view: int | None = None,
+                   masks_path=None) -> list[Path]:
     """Overlay PNGs ``overlays/view{v:02d}_frame{f:04d}.png`` in ``out_dir`` of a few fitted
     frames per view (config ``fit.overlay``), drawn on the images of the frames table
     ``frames_path``; ``view``: the source camera of a one-view fit. With more views than
-    ``max_views``, the flagged ones (:func:`flagged_views`) are among them."""
+    ``max_views``, the flagged ones (:func:`flagged_views`) are among them. ``masks_path``: a
+    masks (or frames) table whose person masks are outlined beside the fitted body's."""
     oc = cfg["overlay"]
     (out_dir / "overlays").mkdir(parents=True, exist_ok=True)
     df = read_frames(frames_path)
+    try:
+        masks = mask_files(masks_path) if masks_path else {}
+    except InputError as exc:  # the fit did not need them: the overlays go without outlines
+        log.warning("overlays without the masks' outlines: %s", exc)
+        masks = {}
+    faces = kpm.model.faces.cpu().numpy()
     pos = pick_frames(result.frames, result.provenance, oc["frames_per_view"])
     if not pos:
         return []
@@ -142,7 +185,11 @@ def write_overlays(kpm: KeypointModel, result: FitResult, obs: np.ndarray, frame
             if row.empty:
                 continue
             img = read_rgb(row["image_path"].iloc[0])
-            drawn = draw_overlay(img, uv[v, i, :133], obs[v, p], uv[v, i, 133:])
+            mask = _mask_for(masks.get((src_view, f)), img.shape[:2])
+            outline = None if mask is None else silhouette(
+                rig.K[v], rig.R[v], rig.t[v], verts[i], faces, img.shape[1], img.shape[0])
+            drawn = draw_overlay(img, uv[v, i, :133], obs[v, p], uv[v, i, 133:],
+                                 mask=mask, outline=outline)
             paths.append(write_overlay(out_dir / "overlays" / f"view{v:02d}_frame{f:04d}.png",
                                        drawn))
     return paths

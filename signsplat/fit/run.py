@@ -210,7 +210,8 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
     ev = fit_eval_table(kpm, result, obs, mode, cfg["keypoints"], gt_smplx, gt_cameras, view)
     write_table(ev, out_dir / "fit_eval.parquet", "fit_eval", metadata=meta)
     (out_dir / "overlays").mkdir(parents=True, exist_ok=True)
-    overlays = write_overlays(kpm, result, obs, frames, out_dir, cfg, view) if frames else []
+    overlays = write_overlays(kpm, result, obs, frames, out_dir, cfg, view,
+                              masks_path=masks) if frames else []
     summary = {"scene": name, "mode": mode, "seconds": result.seconds,
                "seconds_with_io": time.perf_counter() - t0, "log": result.log,
                "provenance": {k: int(v) for k, v in

@@ -22,6 +22,7 @@ from signsplat.fit.multiview import fit_multiview
 from signsplat.fit.rig_init import SOURCES
 from signsplat.fit.singleview import fit_singleview
 from signsplat.fit.solver import stage_config
+from signsplat.io.images import read_rgb
 from signsplat.io.tables import read_table, write_table
 
 FAST_MV = {
@@ -190,7 +191,8 @@ def test_singleview_follows_a_signer_walking_across_the_frame(kpm):
 
 
 def _write_inputs(tmp_path, kpm, T=3, V=2):
-    from signsplat.io.images import write_png
+    from signsplat.fit.side_check import silhouette
+    from signsplat.io.images import write_mask, write_png
 
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=90)
@@ -215,11 +217,14 @@ def _write_inputs(tmp_path, kpm, T=3, V=2):
     write_table(pd.DataFrame(smplx), tmp_path / "gt.parquet", "smplx_params",
                 metadata={"hand_mean": "flat"})
     frames = []
+    _, _, verts = keypoints_of(kpm, gt)
     for v in range(V):
         for t in range(T):
-            name = f"images/{v:02d}/{t:04d}.png"
+            name, mask = f"images/{v:02d}/{t:04d}.png", f"masks/{v:02d}/{t:04d}.png"
             write_png(tmp_path / name, np.full((256, 256, 3), 90, np.uint8))
-            frames.append(("s", v, t, t / 25.0, name, ""))
+            write_mask(tmp_path / mask, silhouette(rig.K[v], rig.R[v], rig.t[v], verts[t],
+                                                   kpm.model.faces.numpy(), 256, 256))
+            frames.append(("s", v, t, t / 25.0, name, mask))
     write_table(pd.DataFrame(frames, columns=["scene", "view", "frame", "time", "image", "mask"])
                 .astype({"view": "int32", "frame": "int32"}), tmp_path / "frames.parquet",
                 "frames")
@@ -254,7 +259,8 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
                      str(d / "kp.parquet"), "--calibration", str(d / "cameras.parquet"),
                      "--frames", str(d / "frames.parquet"), "--body", str(proxy_body_path),
                      "--out-dir", str(out), "--gt-smplx", str(d / "gt.parquet"),
-                     "--gt-cameras", str(d / "cameras.parquet")])
+                     "--gt-cameras", str(d / "cameras.parquet"),
+                     "--masks", str(d / "frames.parquet")])
         assert torch.are_deterministic_algorithms_enabled()  # reproducible gathers
     finally:
         torch.use_deterministic_algorithms(False)
@@ -271,7 +277,12 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
             ("image_error", "all"), ("image_error", "right_hand"), ("mpjpe", "body_seen")}
     assert need <= set(zip(ev["metric"], ev["part"]))
     assert (ev["seconds_per_frame"] > 0).all()
-    assert len(list((out / "overlays").glob("*.png"))) == 2
+    overlays = sorted((out / "overlays").glob("*.png"))
+    assert len(overlays) == 2
+    # the person mask's outline (magenta) and the fitted body's (cyan) are drawn
+    img = read_rgb(overlays[0])
+    for rgb in ((255, 0, 255), (0, 255, 255)):
+        assert (img == rgb).all(-1).sum() > 200
     # benchmarks/fit_eval_add_rows.py gives a fit scored before a row existed that row back,
     # with the value the fit itself wrote, and leaves the other rows as they were
     seen = ev[(ev["metric"] == "mpjpe") & (ev["part"] == "body_seen")]["value"].item()
