@@ -54,6 +54,8 @@ FIT_SUITE = register_table(Table(
         "mask_turned": "int32 doubtful views that the person masks turned around after the "
                        "keypoint stages, the fit then starting again (fit_log.json "
                        "camera_mask_sides)",
+        "mask_kept": "int32 doubtful views whose person masks kept them where they were "
+                     "placed (fit_log.json camera_mask_sides)",
         "fit_seconds": "float64 wall-clock seconds of the fit rule (Snakemake benchmark)",
         "pipeline_seconds": "float64 simulate + perception + fit seconds",
         "status": "str ok, or what failed",
@@ -121,7 +123,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
                  "keypoints": keypoints}
     row.update({c: float("nan") for c in _METRICS.values()})
     row.update({"camera_init": "", "camera_status": "", "unplaced": 0, "doubtful": 0,
-                "mask_turned": 0})
+                "mask_turned": 0, "mask_kept": 0})
     fit_dir = root / scene / "fit"
     bench = root / "_benchmarks"
     row["fit_seconds"] = _bench(bench, scene, "fit_smplx")
@@ -146,6 +148,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
     row["doubtful"] = int(summary.get("log", {}).get("camera_init_doubtful", 0))
     sides = summary.get("log", {}).get("camera_mask_sides", {})
     row["mask_turned"] = int(sum(bool(s.get("turned")) for s in sides.values()))
+    row["mask_kept"] = len(sides) - row["mask_turned"]
     row["frames"] = int(sum(summary.get("provenance", {}).values()) or row["frames"])
     finite = np.isfinite([row[c] for c in ("camera_rotation_deg", "camera_centre_m",
                                            "body_mpjpe_mm")]).all()
@@ -158,7 +161,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
 def suite_table(rows: list[dict]) -> pd.DataFrame:
     """Rows -> the ``fit_suite`` table (columns in the documented order and types)."""
     df = pd.DataFrame(rows, columns=list(FIT_SUITE.columns))
-    for c in ("cameras", "frames", "unplaced", "doubtful", "mask_turned"):
+    for c in ("cameras", "frames", "unplaced", "doubtful", "mask_turned", "mask_kept"):
         df[c] = df[c].astype(np.int32)
     df["meets_target"] = df["meets_target"].astype(bool)
     return df
@@ -246,14 +249,18 @@ def _camera_warnings(df: pd.DataFrame) -> str:
     doubt = df[df["doubtful"] > 0] if "doubtful" in df else df.iloc[:0]
     if len(doubt):
         note += (" Warning: cameras that may face the signer from the other side (their "
-                 "detections fit there a little better; see the fit log): "
-                 + ", ".join(f"{r.scene} ({r.doubtful})" for r in doubt.itertuples()) + ".")
-    turned = df[df["mask_turned"] > 0] if "mask_turned" in df else df.iloc[:0]
-    if len(turned):
-        note += (" Of those, turned around by their person masks: "
-                 + ", ".join(f"{r.scene} ({r.mask_turned})" for r in turned.itertuples())
-                 + "; the others stayed where they were placed.")
+                 "detections fit there a little better; see the fit log and the overlays): "
+                 + ", ".join(_doubt_told(r) for r in doubt.to_dict("records")) + ".")
     return note
+
+
+def _doubt_told(row: dict) -> str:
+    """``scene (n)``, and what the person masks decided of those views (tables written
+    before the masks' check have no such columns)."""
+    turned, kept = int(row.get("mask_turned", 0)), int(row.get("mask_kept", 0))
+    masks = f"; by their person masks {turned} turned around, {kept} kept where placed" \
+        if turned or kept else ""
+    return f"{row['scene']} ({row['doubtful']}{masks})"
 
 
 def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = None):
@@ -281,7 +288,7 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "body_seen_mpjpe_mm",
             "hands_mpjpe_mm",
             "body_pa_mpjpe_mm", "hands_pa_mpjpe_mm", "body_jitter", "camera_init", "unplaced",
-            "doubtful", "mask_turned", "fit_seconds", "status", "meets_target"]
+            "doubtful", "mask_turned", "mask_kept", "fit_seconds", "status", "meets_target"]
     sec.add_table("per scene", df[[c for c in keep if c in df]])  # older tables lack some
     if figure is not None and Path(figure).exists():
         sec.figures.append(Figure(assets.copy(Path(figure)), "errors per scene",

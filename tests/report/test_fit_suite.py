@@ -91,17 +91,20 @@ def test_report_section_when_the_suite_has_run(tmp_path):
     assert "may face the signer from the other side" in sec.intro
     assert sec.frames[0][1]["doubtful"].tolist() == [0, 2]
     assert sec.frames[0][1]["mask_turned"].tolist() == [0, 1]
-    assert "turned around by their person masks: unplaced (1)" in sec.intro
+    assert sec.frames[0][1]["mask_kept"].tolist() == [0, 1]
+    assert "unplaced (2; by their person masks 1 turned around, 1 kept where placed)" \
+        in sec.intro
     assert "joints two or more cameras see, body MPJPE <= 25 mm on 2 of 2" in sec.intro
     assert [c for c, _ in sec.frames] == ["per scene"]
     assert sec.frames[0][1]["scene"].tolist() == ["good", "unplaced"]
     assert len(sec.figures) == 1 and (tmp_path / "report" / sec.figures[0].src).exists()
     assert sec.frames[0][1]["body_seen_mpjpe_mm"].tolist() == [12.0, 12.0]
     # a table written before the column existed still gets its section
-    df.drop(columns="body_seen_mpjpe_mm").to_parquet(table)
+    df.drop(columns=["body_seen_mpjpe_mm", "mask_turned", "mask_kept"]).to_parquet(table)
     sec = fit_suite_section(table, assets)
     assert "body_seen_mpjpe_mm" not in sec.frames[0][1] and "body_mpjpe_mm" in sec.frames[0][1]
     assert "joints two or more cameras see" not in sec.intro
+    assert "unplaced (2)." in sec.intro  # no masks' verdict in a table from before the check
 
 
 def test_the_report_command_shows_the_suite(tmp_path):
