@@ -28,15 +28,20 @@ _SHIFT = 3
 #: sample outside the triangle, so the silhouette is filled on a finer grid and a pixel is
 #: covered when more than half of its samples are
 _SUPERSAMPLE = 4
+#: farthest projected vertex (px) a filled triangle may have: the fill's fixed-point
+#: coordinates must stay within int32
+_FAR_PX = 1e5
 
 
 def silhouette(K: np.ndarray, R: np.ndarray, t: np.ndarray, vertices: np.ndarray,
                faces: np.ndarray, width: int, height: int) -> np.ndarray:
     """(H,W) bool: the pixels (centres at integer coordinates) more than half covered by the
     triangles of the mesh ``vertices (N,3)``, ``faces (F,3)`` seen by the camera. Triangles
-    with a vertex behind the camera are left out."""
+    with a vertex behind the camera, or projected more than ``_FAR_PX`` from the origin (a
+    vertex nearly in the camera's plane), are left out."""
     uv, front = project_points(K, R, t, vertices)
-    keep = front[faces].all(1)
+    near = front & (np.abs(uv) < _FAR_PX).all(-1)
+    keep = near[faces].all(1)
     s = _SUPERSAMPLE
     fine = (uv[faces[keep]] + 0.5) * s - 0.5  # the fine grid's sample centres at integers
     tri = np.round(fine * (1 << _SHIFT)).astype(np.int32)

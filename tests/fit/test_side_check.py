@@ -1,5 +1,7 @@
 """The masks' verdict on which side of the signer a camera faces (signsplat.fit.side_check)."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -20,6 +22,14 @@ def test_silhouette_fills_the_pixels_whose_centres_a_triangle_covers():
     ys, xs = np.nonzero(sil)
     assert sil.sum() == 100  # centres 10..19 x 5..14, nothing of the triangle behind
     assert (xs.min(), xs.max(), ys.min(), ys.max()) == (10, 19, 5, 14)
+    # a vertex nearly in the camera's plane projects far out: its triangle is left out, not
+    # cast to fixed point past int32 (numpy warns of such a cast; here the warning fails)
+    grazing = np.vstack([square, [[1000.0, 5.0, 2e-6]]])  # in front, at 5e8 px
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        far = silhouette(K, np.eye(3), np.zeros(3), grazing, np.vstack([faces, [[0, 1, 5]]]),
+                         32, 24)
+    assert (far == sil).all()
     # a body's front and back overlap in the image: covered twice is covered, not a hole
     twice = silhouette(K, np.eye(3), np.zeros(3), square, faces[[0, 1, 0, 1]], 32, 24)
     assert (twice == sil).all()
