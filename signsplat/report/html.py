@@ -213,7 +213,8 @@ def fit_section(res: Results, assets: Assets) -> Section:
                   "MPJPE / PA-MPJPE per part, reprojection and camera errors, and image_error: "
                   "how many pixels the fitted body lands from the true one in the images (what "
                   "an avatar trained on the fit inherits); overlays show the fitted mesh and "
-                  "skeleton on the input images.")
+                  "skeleton on the input images (the detections as white crosses) and the "
+                  "person mask's outline (magenta) beside the fitted body's (cyan).")
     for name, t in res.scenes.items():
         if t.fit_eval is None:
             continue
