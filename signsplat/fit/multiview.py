@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from signsplat.fit import sequence as seq
-from signsplat.fit.bodyfit import FitParams, KeypointModel
+from signsplat.fit.bodyfit import FitParams, KeypointModel, keypoints_of
 from signsplat.fit.cameras import (CameraParams, Rig, projection_matrices, rig_up_direction,
                                    triangulate)
 from signsplat.fit.flow import flow_targets
@@ -108,33 +108,28 @@ def _exchange_back(obs: np.ndarray, rig: Rig, views: list[int], mv: dict, height
 
 
 def _run_stages(problem, params: FitParams, cams: CameraParams, stages: list[Stage],
-                chunk: int, fitted: np.ndarray, solved: set[str], history: dict) -> None:
+                chunk: int, fitted: np.ndarray, solved: set[str]) -> None:
     """Run ``stages`` in order (Adam warm-started per chunk, or jointly); ``solved`` gathers
     the parameter groups solved so far (warm starts copy only the others)."""
     for stage in stages:
         ts = time.perf_counter()
         if stage.warm_start:
-            history[stage.name] = run_warm_started(problem, params, cams, stage, chunk, fitted,
-                                                   solved)
+            losses = run_warm_started(problem, params, cams, stage, chunk, fitted, solved)
         else:
-            history[stage.name] = run_stage(problem, params, cams, stage)[-1:]
+            losses = run_stage(problem, params, cams, stage)[-1:]
         solved |= set(stage.groups)
         log.info("stage %s: %.1f s, final loss %s", stage.name, time.perf_counter() - ts,
-                 np.round(history[stage.name], 3).tolist())
+                 np.round(losses, 3).tolist())
 
 
 def _mask_sides(kpm: KeypointModel, params: FitParams, rig: Rig, obs: np.ndarray,
                 masks: np.ndarray, fitted: np.ndarray, views: list[int], threshold_px: float,
-                dtype, device, max_frames: int = 24) -> dict[int, SideCheck]:
+                max_frames: int = 24) -> dict[int, SideCheck]:
     """:func:`signsplat.fit.side_check.check_side` of each of ``views`` on the body fitted so
     far, over at most ``max_frames`` evenly spaced fitted frames."""
     idx = np.nonzero(fitted)[0]
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).astype(int))]
-    with torch.no_grad():
-        inputs = params.model_inputs(torch.as_tensor(idx, device=device))
-        _, kp, out = kpm(full=True, **inputs)
-    verts = out.vertices.double().cpu().numpy()
-    kp = kp.double().cpu().numpy()
+    _, kp, verts = keypoints_of(kpm, {k: v[idx] for k, v in params.export().items()})
     faces = kpm.model.faces.cpu().numpy()
     centre = kp[:, [5, 6]].mean((0, 1))  # the chest: between the shoulders
     return {v: check_side(rig.K[v], rig.R[v], rig.t[v], verts, faces, kp, masks[v, idx],
@@ -244,13 +239,12 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         problem = make_problem(kpm, fit_obs, cfg, frames, weights=weights,
                                dtype=dtype, device=device, up=up, level_cameras=up is not None,
                                masks=masks, **flow_args)
-        history: dict[str, list] = {}
         groups_solved: set[str] = set()
         _run_stages(problem, params, cams, stages[:first_mask], mv["chunk"], fitted,
-                    groups_solved, history)
+                    groups_solved)
         if check:
             sides = _mask_sides(kpm, params, cams.to_rig(), fit_obs, masks, fitted, check,
-                                inlier_threshold_px(mv["init"], height), dtype, device)
+                                inlier_threshold_px(mv["init"], height))
             check = []  # once: a second placement is not doubted again
             extra_log["camera_mask_sides"] = {
                 str(v): {"iou_here": round(c.iou_here, 4), "iou_there": round(c.iou_there, 4),
@@ -270,7 +264,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                 fit_obs = _exchange_back(obs, rig0, solved, mv, height, extra_log)
                 continue
         _run_stages(problem, params, cams, stages[first_mask:], mv["chunk"], fitted,
-                    groups_solved, history)
+                    groups_solved)
         break
     raw = params.export()
     filled, prov = seq.fill_gaps(raw, fitted)
