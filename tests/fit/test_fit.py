@@ -581,12 +581,11 @@ def test_a_doubtful_view_is_turned_by_its_masks(kpm, monkeypatch):
     gt = random_motion(T, seed=4)
     gt["body_pose"][:, 3 * 16:3 * 17] += [0.0, 0.0, 0.6]  # right arm raised: asymmetric
     rig = synthetic_rig(V, arc=300, size=size)
-    _, kp, out = kpm(full=True, **{k: torch.as_tensor(v, dtype=torch.float32)
-                                    for k, v in gt.items() if k not in ("leye_pose", "reye_pose")})
-    chest = kp[:, [5, 6]].double().mean((0, 1)).numpy()
+    _, kp, verts = keypoints_of(kpm, gt)
+    chest = kp[:, [5, 6]].mean((0, 1))
     back = 3  # placed behind the signer; the truth sees the front at 30 degrees
     obs = observe(kpm, gt, rig)
-    verts, faces = out.vertices.detach().double().numpy(), kpm.model.faces.numpy()
+    faces = kpm.model.faces.numpy()
     masks = np.stack([np.stack([silhouette(rig.K[v], rig.R[v], rig.t[v], x, faces, size, size)
                                 for x in verts]) for v in range(V)])
     placed_R, placed_t = rig.R.copy(), rig.t.copy()

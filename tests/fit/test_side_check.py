@@ -4,7 +4,6 @@ import warnings
 
 import numpy as np
 import pytest
-import torch
 
 from fit_scenes import random_motion, synthetic_rig
 from signsplat.fit.bodyfit import keypoints_of
@@ -43,11 +42,7 @@ def back_view(kpm):
     params = random_motion(T, seed=3)
     params["body_pose"][:, 3 * 16:3 * 17] += [0.0, 0.0, 0.6]  # right arm raised: asymmetric
     front = synthetic_rig(1, size=160)
-    with torch.no_grad():
-        _, kp, out = kpm(full=True, **{k: torch.as_tensor(v, dtype=torch.float32)
-                                        for k, v in params.items()
-                                        if k not in ("leye_pose", "reye_pose")})
-    verts, kp = out.vertices.double().numpy(), kp.double().numpy()
+    _, kp, verts = keypoints_of(kpm, params)
     faces = kpm.model.faces.cpu().numpy()
     centre = kp[:, [5, 6]].mean((0, 1))
     K = front.K[0]
