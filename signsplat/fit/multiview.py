@@ -239,6 +239,10 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         problem = make_problem(kpm, fit_obs, cfg, frames, weights=weights,
                                dtype=dtype, device=device, up=up, level_cameras=up is not None,
                                masks=masks, **flow_args)
+        extra_log["legs_held"] = problem.legs_held
+        if problem.legs_held:
+            log.info("legs no view sees (%s): held at the rest pose (fit.hold_unseen_legs)",
+                     ", ".join(problem.legs_held))
         groups_solved: set[str] = set()
         _run_stages(problem, params, cams, stages[:first_mask], mv["chunk"], fitted,
                     groups_solved)

@@ -54,6 +54,29 @@ TORSO_JOINTS = tuple(body_joints.JOINT_INDEX[n] for n in (
 LEG_JOINTS = tuple(body_joints.JOINT_INDEX[n] for n in (
     "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
     "left_foot", "right_foot"))
+#: Per side, the leg's joints (SMPL-X) and the COCO-WholeBody keypoints that show them (knee,
+#: ankle, big and small toe, heel): the hip joint turns the thigh, so no keypoint above the knee
+#: depends on it.
+LEG_SIDES = {
+    side: (tuple(body_joints.JOINT_INDEX[f"{side}_{j}"] for j in ("hip", "knee", "ankle", "foot")),
+           (13 + k, 15 + k, *range(17 + 3 * k, 20 + 3 * k)))
+    for k, side in enumerate(("left", "right"))}
+
+
+def unseen_legs(obs: torch.Tensor) -> list[str]:
+    """Sides whose leg keypoints no view observes in any frame (confidence 0 everywhere in
+    ``obs (V,T,133,3)``)."""
+    return [side for side, (_, kps) in LEG_SIDES.items()
+            if not bool((obs[:, :, list(kps), 2] > 0).any())]
+
+
+def held_pose_mask(sides: list[str], device="cpu") -> torch.Tensor:
+    """(63,) bool: the body-pose values of the legs of ``sides``."""
+    held = torch.zeros(body_joints.NUM_BODY_JOINTS, 3, dtype=torch.bool, device=device)
+    for side in sides:
+        for j in LEG_SIDES[side][0]:
+            held[j - 1] = True
+    return held.reshape(-1)
 
 
 def body_pose_weights(w: Weights, dtype=torch.float32, device="cpu") -> torch.Tensor:

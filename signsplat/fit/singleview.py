@@ -215,4 +215,5 @@ def fit_singleview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: n
                          provenance=prov, num_keypoints=count.astype(np.int64),
                          camera_status=["fixed"],
                          seconds={"initialise": t_init - t0, "refine": t1 - t_init,
-                                  "total": t1 - t0})
+                                  "total": t1 - t0},
+                         log={"legs_held": problem.legs_held})

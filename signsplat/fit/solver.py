@@ -149,6 +149,17 @@ class Problem:
     flow: FlowTargets | None = None
     #: config ``fit.multiview.flow`` (clamp_px, max_vertices) when ``flow`` is given
     flow_settings: dict = field(default_factory=dict)
+    #: (63,) bool body-pose values held at ``pose_mean`` (legs no view sees: config
+    #: ``fit.hold_unseen_legs``); None holds nothing
+    held_pose: torch.Tensor | None = None
+
+    @property
+    def legs_held(self) -> list[str]:
+        """Sides whose legs :attr:`held_pose` holds (for the fit log)."""
+        if self.held_pose is None:
+            return []
+        return [side for side, (joints, _) in obj.LEG_SIDES.items()
+                if bool(self.held_pose[3 * (joints[0] - 1)])]
 
 
 def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndarray | None = None,
@@ -170,6 +181,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     valid = getattr(kpm.regressor, "valid", None)
     if valid is not None:
         obs_t[..., 2] = obs_t[..., 2] * valid.to(device=device, dtype=dtype)
+    held = (obj.held_pose_mask(obj.unseen_legs(obs_t), device=device)
+            if cfg["hold_unseen_legs"] else None)
     contig = None
     if frames is not None:
         from signsplat.fit.sequence import contiguous_triplets
@@ -186,7 +199,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         level_cameras=bool(level_cameras and up is not None),
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
                                                                  device=device),
-        flow=flow, flow_settings={} if flow is None else dict(cfg["multiview"]["flow"]))
+        flow=flow, flow_settings={} if flow is None else dict(cfg["multiview"]["flow"]),
+        held_pose=held if held is not None and bool(held.any()) else None)
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -289,16 +303,31 @@ def _param_groups(params: FitParams, cams: CameraParams, stage: Stage) -> list[d
 
 def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
               sel: slice = slice(None)) -> list[float]:
-    """Optimise ``stage.groups`` on frames ``sel`` with Adam + cosine decay; returns losses."""
+    """Optimise ``stage.groups`` on frames ``sel`` with Adam + cosine decay; returns losses.
+    The body-pose values of ``problem.held_pose`` get no gradient and end the stage at the
+    prior mean, whatever the optimiser."""
     if stage.iterations <= 0:
         return []
     if stage.optimizer == "lm":
         from signsplat.fit.levenberg_marquardt import run_lm
 
-        return run_lm(problem, params, cams, stage, sel)
-    groups = _param_groups(params, cams, stage)
-    if stage.optimizer == "lbfgs":
-        return _run_lbfgs(problem, params, cams, stage, sel, groups)
+        history = run_lm(problem, params, cams, stage, sel)
+    else:
+        groups = _param_groups(params, cams, stage)
+        history = (_run_lbfgs(problem, params, cams, stage, sel, groups)
+                   if stage.optimizer == "lbfgs" else
+                   _run_adam(problem, params, cams, stage, sel, groups))
+    if problem.held_pose is not None:
+        mean = (problem.pose_mean if problem.pose_mean is not None else
+                torch.zeros_like(params.body_pose[0]))
+        with torch.no_grad():
+            params.body_pose[:, problem.held_pose] = mean[problem.held_pose].to(
+                params.body_pose.dtype)
+    return history
+
+
+def _run_adam(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
+              sel: slice, groups: list[dict]) -> list[float]:
     opt = torch.optim.Adam(groups)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
@@ -316,10 +345,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
             raise FloatingPointError(f"stage {stage.name}: non-finite loss at iteration {it} "
                                      f"({ {k: float(v) for k, v in terms.items()} })")
         loss.backward()
-        for g in opt.param_groups:  # a non-finite gradient must never reach the parameters
-            for p in g["params"]:
-                if p.grad is not None:
-                    torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+        _sanitize_grads([p for g in opt.param_groups for p in g["params"]], problem, params)
         opt.step()
         history.append(float(loss.detach()))
     log.debug("stage %s terms: %s", stage.name,
@@ -328,10 +354,13 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     return history
 
 
-def _sanitize_grads(tensors) -> None:
+def _sanitize_grads(tensors, problem: Problem, params: FitParams) -> None:
+    """A non-finite gradient must never reach the parameters, nor any to a held pose value."""
     for p in tensors:
         if p.grad is not None:
             torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+    if problem.held_pose is not None and params.body_pose.grad is not None:
+        params.body_pose.grad[:, problem.held_pose] = 0.0
 
 
 def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
@@ -352,7 +381,7 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss")
         loss.backward()
-        _sanitize_grads(tensors)
+        _sanitize_grads(tensors, problem, params)
         history.append(float(loss.detach()))
         return loss
 
