@@ -7,7 +7,8 @@ table (timestamps and images for the overlays and the flow term) and the person 
 With the ground-truth tables the fit is also evaluated.
 
 Outputs (:func:`fit_scene`, in ``out_dir``): ``smplx_fit.parquet`` (table ``smplx_params`` +
-``provenance`` and ``num_keypoints``; metadata ``hand_mean: flat``), ``cameras_fit.parquet``
+``provenance`` and ``num_keypoints``; metadata ``hand_mean: flat`` and ``legs_held``, the
+legs no view saw, kept at the rest pose), ``cameras_fit.parquet``
 (table ``cameras`` + ``fit_status``), ``fit_eval.parquet`` (table ``fit_eval``),
 ``fit_log.json`` (counters and seconds) and ``overlays/view{v:02d}_frame{f:04d}.png``.
 """
@@ -203,7 +204,8 @@ def fit_scene(cfg: dict, out_dir: str | os.PathLike, keypoints: str | os.PathLik
     meta = {"hand_mean": HAND_MEAN, "body_model": str(body), "mode": mode,
             "keypoints": cfg["keypoints"],
             "keypoint_offsets": offsets_label(keypoint_offsets, offsets_fingers),
-            "world_frame": world_frame(mode, result.log.get("reference_view"))}
+            "world_frame": world_frame(mode, result.log.get("reference_view")),
+            "legs_held": ", ".join(result.log.get("legs_held", [])) or "none"}
     data.write_outputs(out_dir, data.smplx_table(result.params, name, result.frames,
                                                  result.provenance, result.num_keypoints),
                        data.cameras_table(result.rig, name, result.camera_status), meta)

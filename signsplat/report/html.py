@@ -224,6 +224,9 @@ def fit_section(res: Results, assets: Assets) -> Section:
         offsets = fe.attrs.get("keypoint_offsets", "none")
         whose = "" if offsets == "none" else \
             f"; fitted to the detector's own keypoints, {Path(offsets).name}"
+        legs = fe.attrs.get("legs_held", "none")
+        if legs != "none":
+            whose += f"; legs no view sees ({legs}) kept at the rest pose"
         sec.add_table(f"{name}: fit accuracy (fit took {_fmt_seconds(secs)}{whose})", fe[cols])
         bench = bench_seconds(res.benchmarks, "fit_smplx", name)
         for img in t.fit_overlays:

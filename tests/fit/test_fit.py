@@ -19,6 +19,7 @@ from signsplat.fit import evaluate as fit_eval
 from signsplat.fit.bodyfit import keypoints_of
 from signsplat.fit.filters import clean_observations
 from signsplat.fit.multiview import fit_multiview
+from signsplat.fit.objective import LEG_SIDES
 from signsplat.fit.rig_init import SOURCES
 from signsplat.fit.singleview import fit_singleview
 from signsplat.fit.solver import stage_config
@@ -277,6 +278,12 @@ def test_cli_writes_tables_eval_and_overlays(tmp_path, kpm, proxy_body_path):
             ("image_error", "all"), ("image_error", "right_hand"), ("mpjpe", "body_seen")}
     assert need <= set(zip(ev["metric"], ev["part"]))
     assert (ev["seconds_per_frame"] > 0).all()
+    # the legs this scene's keypoints never show are named in the tables and the log
+    kp = read_table(d / "kp.parquet", "keypoints")
+    unseen = [side for side, (_, idx) in LEG_SIDES.items()
+              if not (kp["kp"].isin(idx) & (kp["score"] > 0)).any()]
+    assert json.loads((out / "fit_log.json").read_text())["log"]["legs_held"] == unseen
+    assert ev.attrs["legs_held"] == (", ".join(unseen) or "none")
     overlays = sorted((out / "overlays").glob("*.png"))
     assert len(overlays) == 2
     # the person mask's outline (magenta) and the fitted body's (cyan) are drawn

@@ -319,7 +319,8 @@ def test_fronts_before_and_after_are_each_code_s_own_and_shown_in_the_sweep_sect
 
 def test_fit_table_says_when_the_fit_took_the_detector_s_own_keypoints(tmp_path):
     """A fit_eval written with the keypoint_offsets it used (signsplat.fit.run's metadata):
-    the report's fit table names the table; without it, the caption says nothing of it."""
+    the report's fit table names the table; without it, the caption says nothing of it. The
+    same for the legs the fit kept at the rest pose (metadata legs_held)."""
     from signsplat.io.tables import write_table
     from signsplat.report.html import Assets, fit_section
 
@@ -331,3 +332,8 @@ def test_fit_table_says_when_the_fit_took_the_detector_s_own_keypoints(tmp_path)
                 metadata={"keypoint_offsets": "models/pretrained_keypoint_offsets.parquet"})
     moved = fit_section(collect(root), Assets(tmp_path / "b"))
     assert "own keypoints, pretrained_keypoint_offsets.parquet" in moved.tables[0][0]
+    assert "rest pose" not in moved.tables[0][0]
+    write_table(read_table(path, "fit_eval"), path, "fit_eval",
+                metadata={"legs_held": "left, right"})
+    held = fit_section(collect(root), Assets(tmp_path / "c"))
+    assert "legs no view sees (left, right) kept at the rest pose" in held.tables[0][0]
