@@ -181,8 +181,7 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     valid = getattr(kpm.regressor, "valid", None)
     if valid is not None:
         obs_t[..., 2] = obs_t[..., 2] * valid.to(device=device, dtype=dtype)
-    held = (obj.held_pose_mask(obj.unseen_legs(obs_t), device=device)
-            if cfg["hold_unseen_legs"] else None)
+    legs = obj.unseen_legs(obs_t) if cfg["hold_unseen_legs"] else []
     contig = None
     if frames is not None:
         from signsplat.fit.sequence import contiguous_triplets
@@ -200,7 +199,7 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
                                                                  device=device),
         flow=flow, flow_settings={} if flow is None else dict(cfg["multiview"]["flow"]),
-        held_pose=held if held is not None and bool(held.any()) else None)
+        held_pose=obj.held_pose_mask(legs, device=device) if legs else None)
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:

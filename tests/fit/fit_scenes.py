@@ -67,3 +67,35 @@ def observe(kpm, params: dict[str, np.ndarray], rig: Rig, noise_px: float = 0.0,
     inside = (uv[..., 0] >= 0) & (uv[..., 0] < rig.width[:, None, None]) & \
         (uv[..., 1] >= 0) & (uv[..., 1] < rig.height[:, None, None]) & (z.numpy() > 0)
     return np.concatenate([uv, inside[..., None].astype(float)], -1)
+
+
+def mesh_vertices(kpm, params: dict[str, np.ndarray]) -> torch.Tensor:
+    """(T,N,3) float32 vertices of the body model posed by ``params``."""
+    inputs = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in params.items()
+              if k not in ("leye_pose", "reye_pose")}
+    with torch.no_grad():
+        return kpm.model(**inputs).vertices
+
+
+def render_masks(kpm, params: dict[str, np.ndarray], rig: Rig, supersample: int = 1
+                 ) -> np.ndarray:
+    """(V,T,H,W) masks as the simulator makes them: a pixel is the person's when more than
+    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered),
+    or exactly half and its centre is (1: the pixels whose centre the body covers)."""
+    from signsplat.synth import mesh_render as mr
+    from signsplat.synth.simulate import coverage_mask
+
+    verts = mesh_vertices(kpm, params).double().numpy()
+    faces = kpm.model.faces.numpy()
+    V, T = rig.num_views, verts.shape[0]
+    H, W = int(rig.height[0]), int(rig.width[0])
+    out = np.zeros((V, T, H, W), bool)
+    for v in range(V):
+        K = mr.scale_intrinsics(rig.K[v], supersample)
+        for t in range(T):
+            r = mr.rasterize(verts[t], faces, K, rig.R[v], rig.t[v], W * supersample,
+                             H * supersample)
+            centre = mr.rasterize(verts[t], faces, rig.K[v], rig.R[v], rig.t[v], W, H).mask
+            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample),
+                                      centre)
+    return out

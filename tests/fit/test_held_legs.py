@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 import torch
-from fit_scenes import make_stage, observe, random_motion, synthetic_rig
-from test_silhouette import _masks
+from fit_scenes import make_stage, observe, random_motion, render_masks, synthetic_rig
 
 from signsplat.config import validate
 from signsplat.fit import objective as obj
@@ -72,7 +71,7 @@ def _spread_scene(kpm, T=2, V=3):
     init["betas"] = gt["betas"][:1]
     init["body_pose"] = gt["body_pose"].copy()
     init["body_pose"][:, [LEFT_HIP + 2, RIGHT_HIP + 2]] = 0.0
-    return gt, rig, obs, _masks(kpm, gt, rig), init
+    return gt, rig, obs, render_masks(kpm, gt, rig), init
 
 
 @pytest.mark.parametrize("solver", [

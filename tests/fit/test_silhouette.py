@@ -7,7 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from fit_scenes import make_stage, observe, random_motion, synthetic_rig
+from fit_scenes import (make_stage, mesh_vertices, observe, random_motion, render_masks,
+                         synthetic_rig)
 
 from signsplat.config import validate
 from signsplat.errors import InputError
@@ -22,36 +23,6 @@ from signsplat.fit.silhouette import (
     targets_from_masks,
 )
 from signsplat.fit.solver import Stage, loss_terms, make_problem, run_stage, stage_config
-
-
-def _vertices(kpm, params):
-    inputs = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in params.items()
-              if k not in ("leye_pose", "reye_pose")}
-    with torch.no_grad():
-        return kpm.model(**inputs).vertices
-
-
-def _masks(kpm, params, rig, supersample: int = 1) -> np.ndarray:
-    """(V,T,H,W) masks as the simulator makes them: a pixel is the person's when more than
-    half of it is covered (the mesh rasterized ``supersample`` times denser, box-filtered),
-    or exactly half and its centre is (1: the pixels whose centre the body covers)."""
-    from signsplat.synth import mesh_render as mr
-    from signsplat.synth.simulate import coverage_mask
-
-    verts = _vertices(kpm, params).double().numpy()
-    faces = kpm.model.faces.numpy()
-    V, T = rig.num_views, verts.shape[0]
-    H, W = int(rig.height[0]), int(rig.width[0])
-    out = np.zeros((V, T, H, W), bool)
-    for v in range(V):
-        K = mr.scale_intrinsics(rig.K[v], supersample)
-        for t in range(T):
-            r = mr.rasterize(verts[t], faces, K, rig.R[v], rig.t[v], W * supersample,
-                             H * supersample)
-            centre = mr.rasterize(verts[t], faces, rig.K[v], rig.R[v], rig.t[v], W, H).mask
-            out[v, t] = coverage_mask(mr.downsample(r.mask.astype(np.float32), supersample),
-                                      centre)
-    return out
 
 
 def _t(a):
@@ -101,8 +72,8 @@ def _three_view_scene(kpm):
     T, V = 2, 3
     gt = random_motion(T, seed=3)
     rig = synthetic_rig(V, arc=120)
-    tg = targets_from_masks(_masks(kpm, gt, rig))
-    return _vertices(kpm, gt), _t(rig.K), _t(rig.R), _t(rig.t), tg, torch.arange(T), V
+    tg = targets_from_masks(render_masks(kpm, gt, rig))
+    return mesh_vertices(kpm, gt), _t(rig.K), _t(rig.R), _t(rig.t), tg, torch.arange(T), V
 
 
 def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
@@ -127,8 +98,8 @@ def test_the_outline_is_not_pulled_inwards(kpm):
     T, V = 1, 3
     gt = random_motion(T, seed=3)
     rig = synthetic_rig(V, arc=120, size=96)
-    tg = targets_from_masks(_masks(kpm, gt, rig, supersample=4))
-    verts = _vertices(kpm, gt)
+    tg = targets_from_masks(render_masks(kpm, gt, rig, supersample=4))
+    verts = mesh_vertices(kpm, gt)
     centre = verts.mean(1, keepdim=True)
     K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
     scales = [0.97, 0.98, 0.99, 1.0, 1.01, 1.02]
@@ -168,10 +139,10 @@ def test_hard_cases_stay_finite(kpm):
     T, V = 2, 2
     gt = random_motion(T, seed=4)
     rig = synthetic_rig(V, arc=90)
-    masks = _masks(kpm, gt, rig)
+    masks = render_masks(kpm, gt, rig)
     masks[:, 1] = False  # frame 1: nobody in any view
     tg = targets_from_masks(masks)
-    verts = _vertices(kpm, gt).clone()
+    verts = mesh_vertices(kpm, gt).clone()
     K, R, t = _t(rig.K), _t(rig.R), _t(rig.t)
     cases = {"behind": verts - 10.0 * R[0, 2],  # pushed behind camera 0
              "collapsed": torch.zeros_like(verts) + verts[:, :1]}  # every vertex in one point
@@ -199,7 +170,7 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
     T, V = 2, 3
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=120)
-    masks = _masks(kpm, gt, rig)
+    masks = render_masks(kpm, gt, rig)
     obs = observe(kpm, gt, rig)
     init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
     init["betas"] = gt["betas"][:1]
@@ -297,9 +268,9 @@ def test_outline_points_between_vertices_are_on_the_contour(kpm):
     T, V = 2, 3
     gt = random_motion(T, seed=5)
     rig = synthetic_rig(V, arc=120, size=128)
-    verts = _vertices(kpm, gt)
+    verts = mesh_vertices(kpm, gt)
     faces = kpm.model.faces
-    tg = targets_from_masks(_masks(kpm, gt, rig))
+    tg = targets_from_masks(render_masks(kpm, gt, rig))
     _, cover = silhouette_terms(verts, faces, _t(rig.K), _t(rig.R), _t(rig.t), tg,
                                 torch.arange(T))
     per_point = float(cover) / V  # cover sums the views and averages the frames
