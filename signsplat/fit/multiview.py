@@ -227,6 +227,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         flow_args = {"flow": flow}
     # the stages before the first with mask terms fit the body on the keypoints alone
     first_mask = next((i for i, st in enumerate(stages) if st.uses_silhouette), len(stages))
+    image_sizes = np.stack(np.broadcast_arrays(width, height), -1).reshape(-1, 2)
     margin = mv["init"]["mask_side_margin"]
     check = doubtful if masks is not None and margin is not None else []
     while True:
@@ -238,7 +239,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                  "body frame +y" if up is None else np.round(up, 4).tolist())
         problem = make_problem(kpm, fit_obs, cfg, frames, weights=weights,
                                dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                               masks=masks, **flow_args)
+                               masks=masks, image_sizes=image_sizes, **flow_args)
         extra_log["legs_held"] = problem.legs_held
         if problem.legs_held:
             log.info("legs no view sees (%s): held at the rest pose (fit.hold_unseen_legs)",

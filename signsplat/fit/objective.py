@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import numpy as np
 import torch
 
 from signsplat.body import joints as body_joints
@@ -63,11 +64,21 @@ LEG_SIDES = {
     for k, side in enumerate(("left", "right"))}
 
 
-def unseen_legs(obs: torch.Tensor) -> list[str]:
-    """Sides whose leg keypoints no view observes in any frame (confidence 0 everywhere in
-    ``obs (V,T,133,3)``)."""
-    return [side for side, (_, kps) in LEG_SIDES.items()
-            if not bool((obs[:, :, list(kps), 2] > 0).any())]
+def unseen_legs(obs: torch.Tensor, image_sizes=None) -> list[str]:
+    """Sides whose leg keypoints no view observes in any frame of ``obs (V,T,133,3)``.
+
+    ``image_sizes (V,2)`` (width, height) px: a point counts as observed only inside its
+    view's image (pixel centres at integer coordinates). A detector that guesses where a knee
+    below the frame lies (MediaPipe's pose model does, at confidences up to 0.9 on the
+    example clip) then does not release a leg that no image shows. None: any point with a
+    confidence counts."""
+    seen = obs[..., 2] > 0
+    if image_sizes is not None:
+        size = torch.as_tensor(np.asarray(image_sizes), dtype=obs.dtype,
+                               device=obs.device)[:, None, None, :]  # (V,1,1,2)
+        xy = obs[..., :2]
+        seen = seen & (xy >= -0.5).all(-1) & (xy <= size - 0.5).all(-1)
+    return [side for side, (_, kps) in LEG_SIDES.items() if not bool(seen[:, :, list(kps)].any())]
 
 
 def held_pose_mask(sides: list[str], device="cpu") -> torch.Tensor:

@@ -167,7 +167,7 @@ class NeutralPoseInitialiser:
                             device=self.device)
         fitted, _ = seq.fitted_mask(obs[None], self.cfg["min_keypoints"])
         problem = make_problem(self.kpm, obs[None], self.cfg, dtype=self.dtype,
-                               device=self.device)
+                               device=self.device, image_sizes=[(width, height)])
         solved: set[str] = set()
         for st_cfg in sv["init_stages"]:
             stage = Stage.from_config(st_cfg)
@@ -206,7 +206,8 @@ def fit_singleview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: n
     cams = CameraParams(_camera_rig(K, width, height), fixed=[0], dtype=dtype, device=device)
     anchor = {k: init[k] for k in ("global_orient", "body_pose", "transl") if k in init}
     problem = make_problem(kpm, obs[None], cfg, frames, anchor=anchor,
-                           weights={"anchor": sv["anchor_weight"]}, dtype=dtype, device=device)
+                           weights={"anchor": sv["anchor_weight"]}, dtype=dtype, device=device,
+                           image_sizes=[(width, height)])
     for st_cfg in sv["refine_stages"]:
         run_stage(problem, params, cams, Stage.from_config(st_cfg))
     filled, prov = seq.fill_gaps(params.export(), fitted)

@@ -166,7 +166,7 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
                  level_cameras: bool = False, masks: np.ndarray | None = None,
-                 flow: FlowTargets | None = None) -> Problem:
+                 flow: FlowTargets | None = None, image_sizes=None) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -175,13 +175,15 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     x axes span a plane) the vertical is recomputed from the current cameras in every step.
     ``masks (V,T,H,W)`` bool person masks: the targets of stages with silhouette weights.
     ``flow``: the flow fields of stages with a flow weight (:func:`signsplat.fit.flow.flow_targets`;
-    the term's settings come from ``cfg['multiview']['flow']``).
+    the term's settings come from ``cfg['multiview']['flow']``). ``image_sizes (V,2)``
+    (width, height) px: a leg keypoint outside its image does not count as seen when the
+    legs no view sees are held (``fit.hold_unseen_legs``, :func:`objective.unseen_legs`).
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
     if valid is not None:
         obs_t[..., 2] = obs_t[..., 2] * valid.to(device=device, dtype=dtype)
-    legs = obj.unseen_legs(obs_t) if cfg["hold_unseen_legs"] else []
+    legs = obj.unseen_legs(obs_t, image_sizes) if cfg["hold_unseen_legs"] else []
     contig = None
     if frames is not None:
         from signsplat.fit.sequence import contiguous_triplets

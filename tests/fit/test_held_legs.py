@@ -30,6 +30,21 @@ def test_unseen_legs_are_the_sides_without_a_leg_observation():
     assert torch.nonzero(held)[:, 0].tolist() == [3, 4, 5, 12, 13, 14, 21, 22, 23, 30, 31, 32]
 
 
+def test_a_leg_point_outside_its_image_is_not_seen():
+    """A pose model's guess of a knee below the frame (MediaPipe's, confident up to 0.9 on the
+    example clip) does not release the leg, once the images' sizes are known."""
+    obs = torch.zeros(2, 3, 133, 3)
+    sizes = [(160, 120), (200, 100)]
+    knee, ankle = _leg_keypoints("left")[:2]
+    obs[0, 1, knee] = torch.tensor([50.0, 130.0, 0.9])  # below view 0's 120 rows
+    obs[1, 2, ankle] = torch.tensor([-3.0, 50.0, 0.9])  # left of view 1
+    obs[1, 0, knee] = torch.tensor([60.0, 110.0, 0.9])  # below view 1's 100 rows
+    assert obj.unseen_legs(obs) == ["right"]  # sizes unknown: every point counts
+    assert obj.unseen_legs(obs, sizes) == ["left", "right"]
+    obs[0, 2, knee] = torch.tensor([159.4, 119.4, 0.5])  # the corner pixel of view 0
+    assert obj.unseen_legs(obs, sizes) == ["right"]
+
+
 def test_make_problem_holds_only_unseen_legs_and_only_when_asked(kpm):
     cfg = validate({}, "stages/fit.schema.yaml")
     obs = np.zeros((2, 3, 133, 3))
@@ -41,6 +56,41 @@ def test_make_problem_holds_only_unseen_legs_and_only_when_asked(kpm):
     assert make_problem(kpm, obs, cfg).held_pose is None
     off = validate({"hold_unseen_legs": False}, "stages/fit.schema.yaml")
     assert make_problem(kpm, np.zeros((2, 3, 133, 3)), off).held_pose is None
+    obs[0, 1, _leg_keypoints("left")[0], 1] = 300.0  # the left knee below a 256-row image
+    assert make_problem(kpm, obs, cfg).legs_held == []
+    assert make_problem(kpm, obs, cfg, image_sizes=[(256, 256)] * 2).legs_held == ["left"]
+
+
+@pytest.mark.parametrize("views", [1, 3])
+def test_fits_pass_the_image_sizes_to_the_hold(kpm, views):
+    """Single- and multi-view fits hold a leg whose points all lie outside the images, and
+    release one with a point inside."""
+    from signsplat.fit.multiview import fit_multiview
+    from signsplat.fit.singleview import fit_singleview
+
+    T = 3
+    gt = random_motion(T, seed=5)
+    rig = synthetic_rig(views, arc=0 if views == 1 else 120)
+    obs = observe(kpm, gt, rig)
+    legs = _leg_keypoints("left") + _leg_keypoints("right")
+    obs[:, :, legs, 0] = 128.0
+    obs[:, :, legs, 1] = 300.0  # guessed below the 256-row images
+    obs[:, :, legs, 2] = 0.9
+    obs[0, 1, _leg_keypoints("right")[0], 1] = 250.0  # one right knee inside view 0
+    stage = {"iterations": 3, "lr": 0.01, "sigma_px": 100}
+    if views == 1:
+        cfg = validate({"singleview": {
+            "hypothesis_iterations": 3,
+            "init_stages": [{"name": "body", "groups": ["root", "body"], **stage}],
+            "refine_stages": [{"name": "refine", "groups": ["root", "body"], **stage}]}},
+            "stages/fit.schema.yaml")
+        res = fit_singleview(kpm, obs[0], np.arange(T), rig.K[0], 256, 256, cfg)
+    else:
+        cfg = validate({"multiview": {"stages": [
+            {"name": "body", "groups": ["root", "body", "cameras"], **stage}]}},
+            "stages/fit.schema.yaml")
+        res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
+    assert res.log["legs_held"] == ["left"]
 
 
 def test_a_held_value_gets_no_gradient(kpm):
