@@ -68,10 +68,9 @@ def unseen_legs(obs: torch.Tensor, image_sizes=None) -> list[str]:
     """Sides whose leg keypoints no view observes in any frame of ``obs (V,T,133,3)``.
 
     ``image_sizes (V,2)`` (width, height) px: a point counts as observed only inside its
-    view's image (pixel centres at integer coordinates). A detector that guesses where a knee
-    below the frame lies (MediaPipe's pose model does, at confidences up to 0.9 on the
-    example clip) then does not release a leg that no image shows. None: any point with a
-    confidence counts."""
+    view's image (pixel centres at integer coordinates), so a detector's guess of a knee below
+    the frame (MediaPipe's pose model makes such guesses) does not release a leg that no image
+    shows. None: any point with a confidence counts."""
     seen = obs[..., 2] > 0
     if image_sizes is not None:
         size = torch.as_tensor(np.asarray(image_sizes), dtype=obs.dtype,

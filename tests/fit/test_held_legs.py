@@ -31,8 +31,8 @@ def test_unseen_legs_are_the_sides_without_a_leg_observation():
 
 
 def test_a_leg_point_outside_its_image_is_not_seen():
-    """A pose model's guess of a knee below the frame (MediaPipe's, confident up to 0.9 on the
-    example clip) does not release the leg, once the images' sizes are known."""
+    """A pose model's guess of a knee below the frame does not release the leg, once the
+    images' sizes are known."""
     obs = torch.zeros(2, 3, 133, 3)
     sizes = [(160, 120), (200, 100)]
     knee, ankle = _leg_keypoints("left")[:2]
