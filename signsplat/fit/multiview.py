@@ -227,7 +227,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
         flow_args = {"flow": flow}
     # the stages before the first with mask terms fit the body on the keypoints alone
     first_mask = next((i for i, st in enumerate(stages) if st.uses_silhouette), len(stages))
-    image_sizes = np.stack(np.broadcast_arrays(width, height), -1).reshape(-1, 2)
+    image_sizes = np.column_stack([width, height])  # (V,2): the hold's bounds
     margin = mv["init"]["mask_side_margin"]
     check = doubtful if masks is not None and margin is not None else []
     while True:
