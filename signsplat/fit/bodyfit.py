@@ -71,13 +71,20 @@ class FitParams(torch.nn.Module):
     def num_frames(self) -> int:
         return int(self.transl.shape[0])
 
-    def hand_pose(self, side: str) -> torch.Tensor:
-        """Feasible flat hand pose (T,45) of ``side``."""
-        return hl.free_to_hand_pose(getattr(self, f"{side}_free"), self.limits[side])
+    def hand_pose(self, side: str, frames: torch.Tensor | slice | None = None
+                  ) -> torch.Tensor:
+        """Feasible flat hand pose (T,45) of ``side``, of the selected ``frames`` only (the
+        conversion runs on those frames alone)."""
+        free = getattr(self, f"{side}_free")
+        return hl.free_to_hand_pose(free if frames is None else free[frames],
+                                    self.limits[side])
 
-    def hand_anatomical(self, side: str) -> torch.Tensor:
-        """Anatomical angles (T,15,3) radians of ``side``."""
-        return hl.free_to_anatomical(getattr(self, f"{side}_free"), self.limits[side])
+    def hand_anatomical(self, side: str, frames: torch.Tensor | slice | None = None
+                        ) -> torch.Tensor:
+        """Anatomical angles (T,15,3) radians of ``side`` (of the selected ``frames``)."""
+        free = getattr(self, f"{side}_free")
+        return hl.free_to_anatomical(free if frames is None else free[frames],
+                                     self.limits[side])
 
     def model_inputs(self, frames: torch.Tensor | slice | None = None) -> dict[str, torch.Tensor]:
         """Keyword arguments for ``BodyModel.forward`` of the selected frames."""
@@ -89,8 +96,8 @@ class FitParams(torch.nn.Module):
             "global_orient": self.global_orient[sel],
             "body_pose": self.body_pose[sel],
             "jaw_pose": self.jaw_pose[sel],
-            "left_hand_pose": self.hand_pose("left")[sel],
-            "right_hand_pose": self.hand_pose("right")[sel],
+            "left_hand_pose": self.hand_pose("left", sel),
+            "right_hand_pose": self.hand_pose("right", sel),
             "transl": self.transl[sel],
         }
 

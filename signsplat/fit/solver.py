@@ -288,7 +288,7 @@ class _SubParams:
         self.num_frames = self.transl.shape[0]
 
     def hand_anatomical(self, side: str) -> torch.Tensor:
-        return self._p.hand_anatomical(side)[self._sel]
+        return self._p.hand_anatomical(side, self._sel)
 
 
 def _param_groups(params: FitParams, cams: CameraParams, stage: Stage) -> list[dict]:
