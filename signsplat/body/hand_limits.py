@@ -143,17 +143,18 @@ def thumb_frame(direction, side: str = "left") -> np.ndarray:
 
 @dataclass(frozen=True)
 class HandLimits:
-    """Limits of the 15 joints of one hand (arrays in SMPL-X hand-joint order).
+    """Limits of the 15 joints of one hand (arrays in SMPL-X hand-joint order), or of the 30
+    of both hands, the left's first (:func:`both_hands`; J below is 15 or 30).
 
     Attributes:
-        side: 'left' or 'right'.
-        names: (15,) joint names (``index1`` ...).
+        side: 'left', 'right' or 'both'.
+        names: (J,) joint names (``index1`` ...).
         order: intrinsic Euler order shared by all joints (``'ZYX'``).
-        lo, hi: (15, 3) float64 anatomical limits in radians, columns (twist, abduction,
+        lo, hi: (J, 3) float64 anatomical limits in radians, columns (twist, abduction,
             flexion); ``lo == hi == 0`` on locked axes.
-        locked: (15, 3) bool, True where the joint cannot rotate about that axis.
-        frames: (15, 3, 3) float64 joint frames (columns: anatomical x, y, z in the rest frame).
-        signs: (3,) anatomical -> Euler signs of this side about (x, y, z).
+        locked: (J, 3) bool, True where the joint cannot rotate about that axis.
+        frames: (J, 3, 3) float64 joint frames (columns: anatomical x, y, z in the rest frame).
+        signs: (3,) anatomical -> Euler signs of this side about (x, y, z); (J, 3) for both.
     """
 
     side: str
@@ -171,7 +172,7 @@ class HandLimits:
         return int((~self.locked).sum())
 
     def euler_lo_hi(self) -> tuple[np.ndarray, np.ndarray]:
-        """Limits as signed Euler angles about (x, y, z) of the joint frame, (15,3) each."""
+        """Limits as signed Euler angles about (x, y, z) of the joint frame, (J,3) each."""
         a, b = self.lo * self.signs, self.hi * self.signs
         return np.minimum(a, b), np.maximum(a, b)
 
@@ -225,6 +226,20 @@ def hand_limits(side: str = "left", thumb_direction=None,
         if name.startswith("thumb"):
             frames[j] = tf
     return HandLimits(side, HAND_JOINT_NAMES, EULER_ORDER, lo, hi, locked, frames, signs)
+
+
+def both_hands(left: HandLimits, right: HandLimits) -> HandLimits:
+    """The limits of both hands as one set of 30 joints, the left hand's first: their free
+    parameters concatenated (left, right) convert in one call, with half the small tensor
+    operations of two."""
+    if left.order != right.order:
+        raise ValueError(f"the hands' Euler orders differ: {left.order} and {right.order}")
+    return HandLimits("both", left.names + right.names, left.order,
+                      np.concatenate([left.lo, right.lo]), np.concatenate([left.hi, right.hi]),
+                      np.concatenate([left.locked, right.locked]),
+                      np.concatenate([left.frames, right.frames]),
+                      np.concatenate([np.broadcast_to(left.signs, left.lo.shape),
+                                      np.broadcast_to(right.signs, right.lo.shape)]))
 
 
 # --- Euler <-> axis-angle ---------------------------------------------------------------------
@@ -294,9 +309,9 @@ def _order_perm(order: str) -> list[int]:
 
 
 def anatomical_to_axis_angle(angles: torch.Tensor, limits: HandLimits) -> torch.Tensor:
-    """Anatomical angles (..., 15, 3) [twist, abduction, flexion] in radians -> hand pose (..., 45).
-
-    The hand pose is the flat (full rotation, no MANO mean) axis-angle of the 15 hand joints.
+    """Anatomical angles (..., J, 3) [twist, abduction, flexion] in radians -> hand pose
+    (..., 3J): the flat (full rotation, no MANO mean) axis-angle of the hand joints (J = 15;
+    30 with :func:`both_hands`' limits, both hands in one call).
     """
     signs = torch.as_tensor(limits.signs, dtype=angles.dtype, device=angles.device)
     xyz = angles * signs
@@ -305,12 +320,12 @@ def anatomical_to_axis_angle(angles: torch.Tensor, limits: HandLimits) -> torch.
     frames = torch.as_tensor(limits.frames, dtype=angles.dtype, device=angles.device)
     rot = frames @ rot @ frames.transpose(-1, -2)
     aa = roma.rotmat_to_rotvec(rot)
-    return aa.reshape(*angles.shape[:-2], NUM_HAND_JOINTS * 3)
+    return aa.reshape(*angles.shape[:-2], angles.shape[-2] * 3)
 
 
 def axis_angle_to_anatomical(hand_pose: torch.Tensor, limits: HandLimits) -> torch.Tensor:
-    """Hand pose (..., 45) flat axis-angle -> anatomical angles (..., 15, 3) in radians."""
-    aa = hand_pose.reshape(*hand_pose.shape[:-1], NUM_HAND_JOINTS, 3)
+    """Hand pose (..., 3J) flat axis-angle -> anatomical angles (..., J, 3) in radians."""
+    aa = hand_pose.reshape(*hand_pose.shape[:-1], hand_pose.shape[-1] // 3, 3)
     frames = torch.as_tensor(limits.frames, dtype=aa.dtype, device=aa.device)
     rot = frames.transpose(-1, -2) @ roma.rotvec_to_rotmat(aa) @ frames
     eul = rotmat_to_euler(rot, limits.order)
@@ -348,7 +363,7 @@ def within_limits(hand_pose, side: str | HandLimits, tol_deg: float = 0.5) -> np
 # --- bounded parameterisation -----------------------------------------------------------------
 
 def free_to_anatomical(free: torch.Tensor, limits: HandLimits) -> torch.Tensor:
-    """Free parameters (..., num_free) -> anatomical angles (..., 15, 3) within the limits.
+    """Free parameters (..., num_free) -> anatomical angles (..., J, 3) within the limits.
 
     Each unlocked axis gets ``lo + (hi - lo) * sigmoid(u)``; locked axes are 0. ``u = 0`` maps
     to the middle of each range (not the flat hand: use :func:`hand_pose_to_free` for that).
@@ -357,7 +372,7 @@ def free_to_anatomical(free: torch.Tensor, limits: HandLimits) -> torch.Tensor:
     lo = torch.as_tensor(limits.lo, dtype=free.dtype, device=free.device)[mask]
     hi = torch.as_tensor(limits.hi, dtype=free.dtype, device=free.device)[mask]
     vals = lo + (hi - lo) * torch.sigmoid(free)
-    out = free.new_zeros(*free.shape[:-1], NUM_HAND_JOINTS, 3)
+    out = free.new_zeros(*free.shape[:-1], len(limits.names), 3)
     out[..., mask] = vals
     return out
 

@@ -47,6 +47,7 @@ class FitParams(torch.nn.Module):
         T = int(num_frames)
         kw = dict(dtype=dtype, device=device)
         self.limits = {"left": hl.hand_limits("left"), "right": hl.hand_limits("right")}
+        self._both_hands = hl.both_hands(self.limits["left"], self.limits["right"])
         init = init or {}
 
         def block(name, shape):
@@ -79,6 +80,15 @@ class FitParams(torch.nn.Module):
         return hl.free_to_hand_pose(free if frames is None else free[frames],
                                     self.limits[side])
 
+    def hand_poses(self, frames: torch.Tensor | slice | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Feasible flat hand poses (T,45) of the left and the right hand of the selected
+        ``frames``, both converted in one call (what the fit's every iteration needs)."""
+        sel = slice(None) if frames is None else frames
+        free = torch.cat([self.left_free[sel], self.right_free[sel]], dim=-1)
+        both = hl.free_to_hand_pose(free, self._both_hands)
+        return both[..., :45], both[..., 45:]
+
     def hand_anatomical(self, side: str, frames: torch.Tensor | slice | None = None
                         ) -> torch.Tensor:
         """Anatomical angles (T,15,3) radians of ``side`` (of the selected ``frames``)."""
@@ -90,14 +100,15 @@ class FitParams(torch.nn.Module):
         """Keyword arguments for ``BodyModel.forward`` of the selected frames."""
         sel = slice(None) if frames is None else frames
         T = self.transl[sel].shape[0]
+        left, right = self.hand_poses(sel)
         return {
             "betas": self.betas.expand(T, -1),
             "expression": self.expression[sel],
             "global_orient": self.global_orient[sel],
             "body_pose": self.body_pose[sel],
             "jaw_pose": self.jaw_pose[sel],
-            "left_hand_pose": self.hand_pose("left", sel),
-            "right_hand_pose": self.hand_pose("right", sel),
+            "left_hand_pose": left,
+            "right_hand_pose": right,
             "transl": self.transl[sel],
         }
 

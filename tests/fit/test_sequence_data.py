@@ -116,8 +116,9 @@ def test_gimbal_lock_hand_pose_gives_finite_parameters_and_gradients(angle):
 
 @pytest.mark.parametrize("frames", [slice(2, 5), torch.tensor([1, 4])])
 def test_a_chunks_hand_poses_are_the_sequences_for_those_frames_and_move_only_them(frames):
-    """The fit's chunks convert the hands of their own frames only: the same poses and
-    anatomical angles as the whole sequence's at those frames, gradient on those frames alone."""
+    """The fit's chunks convert the hands of their own frames only, both hands in one call:
+    the same poses and anatomical angles as each hand's of the whole sequence at those frames,
+    gradient on those frames alone."""
     rng = np.random.default_rng(1)
     params = FitParams(6, 10, 10, dtype=torch.float64)
     with torch.no_grad():
@@ -129,8 +130,10 @@ def test_a_chunks_hand_poses_are_the_sequences_for_those_frames_and_move_only_th
         assert torch.allclose(params.hand_pose(side, frames), whole[frames], atol=1e-12)
         assert torch.allclose(params.hand_anatomical(side, frames),
                               params.hand_anatomical(side).detach()[frames], atol=1e-12)
-    inputs = params.model_inputs(frames)
-    assert inputs["left_hand_pose"].shape == (len(picked), 45)
+    inputs = params.model_inputs(frames)  # both hands converted in one call
+    for side in ("left", "right"):
+        assert torch.allclose(inputs[f"{side}_hand_pose"],
+                              params.hand_pose(side).detach()[frames], atol=1e-12)
     (inputs["left_hand_pose"].sum() + inputs["right_hand_pose"].sum()).backward()
     for side in ("left", "right"):
         moved = getattr(params, f"{side}_free").grad.abs().sum(1).numpy() > 0
