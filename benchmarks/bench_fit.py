@@ -123,6 +123,7 @@ def main(argv=None) -> int:
         base_cache.symlink_to(cache)  # the fetched models, which a fresh worktree lacks
         print(f"linked {base_cache} -> {cache}")
     work = {label: (args.work / label).resolve() for label in checkouts}
+    commits = {label: _commit(c) for label, c in checkouts.items()}  # what runs, not what is
     for label, checkout in checkouts.items():
         prepare(args.results.resolve(), args.scene, work[label])
         check_plan(checkout, work[label], args.scene, args)
@@ -134,10 +135,10 @@ def main(argv=None) -> int:
             raise SystemExit(f"{checkouts[label]}: the fit failed (exit {proc.returncode}); "
                              f"log {work[label]}/_logs/{args.scene}/fit_smplx.log\n{out[-2000:]}")
     rows, fits = [], {}
-    for label, checkout in checkouts.items():
+    for label in checkouts:
         row, fits[label] = fit_row(work[label], args.scene)
         rows.append({"date": dt.date.today().isoformat(), "label": label,
-                     "commit": _commit(checkout), "scene": args.scene,
+                     "commit": commits[label], "scene": args.scene,
                      "threads": args.threads, **row})
     for row in rows:
         row["max_param_diff"] = max_difference(fits[row["label"]], fits["baseline"])
