@@ -72,13 +72,9 @@ class FitParams(torch.nn.Module):
     def num_frames(self) -> int:
         return int(self.transl.shape[0])
 
-    def hand_pose(self, side: str, frames: torch.Tensor | slice | None = None
-                  ) -> torch.Tensor:
-        """Feasible flat hand pose (T,45) of ``side``, of the selected ``frames`` only (the
-        conversion runs on those frames alone)."""
-        free = getattr(self, f"{side}_free")
-        return hl.free_to_hand_pose(free if frames is None else free[frames],
-                                    self.limits[side])
+    def hand_pose(self, side: str) -> torch.Tensor:
+        """Feasible flat hand pose (T,45) of ``side``."""
+        return hl.free_to_hand_pose(getattr(self, f"{side}_free"), self.limits[side])
 
     def hand_poses(self, frames: torch.Tensor | slice | None = None
                    ) -> tuple[torch.Tensor, torch.Tensor]:
