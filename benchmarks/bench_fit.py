@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from _results import append_rows  # benchmarks/_results.py
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "fit_time.parquet"
 INPUTS = ("frames", "sim", "perception")  # a sequence's folders the fit reads
@@ -148,9 +150,7 @@ def main(argv=None) -> int:
     print(f"fit seconds baseline / current: {base['fit_s'] / cur['fit_s']:.2f}x "
           f"(wall {base['wall_s'] / cur['wall_s']:.2f}x); largest parameter difference "
           f"{cur['max_param_diff']:.3g}")
-    if OUT.exists():
-        df = pd.concat([pd.read_parquet(OUT), df], ignore_index=True)
-    df.to_parquet(OUT, index=False)
+    append_rows(df, OUT)
     print(f"appended to {OUT}")
     return 0
 

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from _results import append_rows  # benchmarks/_results.py
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "perception_threads.parquet"
 
@@ -107,9 +109,7 @@ def main(argv=None) -> int:
         wall, cpu = means.loc[condition, "wall_s"], means.loc[condition, "cpu_s"]
         print(f"{condition}: wall baseline / current {wall['baseline'] / wall['current']:.2f}x, "
               f"CPU {cpu['baseline'] / cpu['current']:.2f}x")
-    if OUT.exists():
-        df = pd.concat([pd.read_parquet(OUT), df], ignore_index=True)
-    df.to_parquet(OUT, index=False)
+    append_rows(df, OUT)
     print(f"appended to {OUT}")
     return 0
 

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from _results import append_rows  # benchmarks/_results.py
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "test_suite.parquet"
 LOGS = Path("/tmp/signsplat-bench")  # each run's pytest output (durations, failures)
@@ -91,12 +93,7 @@ def main() -> None:
     ]
     rows = [run_suite(label, path, args, extra) for label, path, args, extra in runs]
     table = pd.DataFrame(rows)
-    if OUT.exists():
-        table = pd.concat([pd.read_parquet(OUT), table], ignore_index=True)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    tmp = OUT.with_suffix(".tmp")
-    table.to_parquet(tmp, index=False)
-    tmp.replace(OUT)
+    append_rows(table, OUT)
     base, cur = rows[1]["wall_s"], rows[0]["wall_s"]
     print(f"wall-clock ratio baseline / current: {base / cur:.2f}x")
 
