@@ -72,10 +72,6 @@ class FitParams(torch.nn.Module):
     def num_frames(self) -> int:
         return int(self.transl.shape[0])
 
-    def hand_pose(self, side: str) -> torch.Tensor:
-        """Feasible flat hand pose (T,45) of ``side``."""
-        return hl.free_to_hand_pose(getattr(self, f"{side}_free"), self.limits[side])
-
     def hand_poses(self, frames: torch.Tensor | slice | None = None
                    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Feasible flat hand poses (T,45) of the left and the right hand of the selected
