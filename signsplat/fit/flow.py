@@ -155,13 +155,18 @@ def visible_vertices(uv: torch.Tensor, z: torch.Tensor, width: int, height: int,
 def bilinear(fields: torch.Tensor, index: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Bilinear samples (M,C) of ``fields (P,C,H,W)`` at ``points (M,2)`` (x, y px) of the
     fields ``index (M,)``; NaN where a corner is NaN, points clamped to the image."""
-    _, _, H, W = fields.shape
+    _, C, H, W = fields.shape
     x = points[:, 0].clamp(0, W - 1)
     y = points[:, 1].clamp(0, H - 1)
     x0 = x.floor().clamp(max=W - 2).long()
     y0 = y.floor().clamp(max=H - 2).long()
     wx, wy = (x - x0)[:, None], (y - y0)[:, None]
-    corner = lambda dy, dx: fields[index, :, y0 + dy, x0 + dx]
+    # gathers from the flat fields (a view when they are contiguous): indexing
+    # fields[index, :, y, x] directly takes PyTorch's slow path for a slice between indices
+    flat = fields.reshape(-1)
+    channel = torch.arange(C, device=index.device)
+    first = ((index[:, None] * C + channel) * H + y0[:, None]) * W + x0[:, None]  # (M,C)
+    corner = lambda dy, dx: flat[first + (dy * W + dx)]
     return ((corner(0, 0) * (1 - wx) + corner(0, 1) * wx) * (1 - wy)
             + (corner(1, 0) * (1 - wx) + corner(1, 1) * wx) * wy)
 

@@ -39,6 +39,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from signsplat.fit.cameras import project
+from signsplat.fit.flow import bilinear
 
 
 @dataclass
@@ -238,21 +239,24 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     """
     V = K.shape[0]
     B = verts.shape[0]
+    T = targets.valid.shape[1]
     H, W = targets.height, targets.width
     uv, z = project(verts, K, R, t) if projected is None else projected  # (V,B,N,2), (V,B,N)
-    front = z > near
-    valid = targets.valid[:, frames]  # (V,B)
-    grid = uv / uv.new_tensor([W - 1, H - 1]) * 2 - 1
-    grid = torch.nan_to_num(grid, nan=2.0, posinf=2.0, neginf=-2.0).clamp(-2, 2)
-    d = torch.nn.functional.grid_sample(_outside_rows(targets, frames),
-                                        grid.reshape(V * B, 1, -1, 2), align_corners=True,
-                                        padding_mode="border")
-    d = d.reshape(V, B, -1)
-    in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
-        (uv[..., 1] < H - 2)
-    w = (in_image & valid[..., None]).to(d.dtype)
-    inside = ((d.clamp(min=0, max=clamp_px) ** 2 * w).sum(-1)
-              / w.sum(-1).clamp(min=1)).sum() / max(B, 1)
+    with torch.no_grad():
+        front = z > near
+        in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
+            (uv[..., 1] < H - 2)
+        w = in_image & targets.valid[:, frames][..., None]
+        counted = w.sum(-1).clamp(min=1)  # (V,B)
+        grid = torch.addcmul(uv.new_tensor(-1.0), uv.detach(),
+                             uv.new_tensor([2 / (W - 1), 2 / (H - 1)]))
+        grid = grid.nan_to_num_(nan=2.0, posinf=2.0, neginf=-2.0).clamp_(-2, 2)
+        d = torch.nn.functional.grid_sample(_outside_rows(targets, frames),
+                                            grid.reshape(V * B, 1, -1, 2), align_corners=True,
+                                            padding_mode="border").reshape(V, B, -1)
+        # the inside term's value and gradient come from the vertices outside the outline
+        # only (clamped at 0 inside): they alone are sampled again, with gradient
+        out_v, out_b, out_n = torch.nonzero(w & (d >= 0), as_tuple=True)
 
     matches = None if cache is None else cache.current(frames)
     if matches is None:
@@ -264,12 +268,22 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
             cache.matches, cache.age = matches, 0
     if cache is not None:
         cache.age += 1
-    if matches.count == 0:
+    iv, ib = matches.view, matches.batch
+    # one gather for every point with gradient (each gather's backward fills a zero tensor of
+    # uv's size): the outside vertices, then the matched edges' starts and ends
+    M, P = len(out_n), matches.count
+    at = uv[torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
+            torch.cat([out_n, matches.start, matches.end])]
+    frame_rows = frames.to(out_v.device)[out_b]
+    d_out = bilinear(targets.outside, out_v * T + frame_rows, at[:M])[:, 0]
+    per_image = uv.new_zeros(V * B).index_add_(0, out_v * B + out_b,
+                                                d_out.clamp(min=0, max=clamp_px) ** 2)
+    inside = (per_image / counted.reshape(-1)).sum() / max(B, 1)
+    if P == 0:
         return inside, verts.new_zeros(())
-    iv, ib, p = matches.view, matches.batch, matches.pixel
     frac = matches.along[:, None]
-    on_body = (1 - frac) * uv[iv, ib, matches.start] + frac * uv[iv, ib, matches.end]
-    dist2 = ((on_body - p) ** 2).sum(-1).clamp(max=clamp_px ** 2)
+    on_body = (1 - frac) * at[M:M + P] + frac * at[M + P:]
+    dist2 = ((on_body - matches.pixel) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     key = iv * B + ib
     per = verts.new_zeros(V * B).index_add_(0, key, dist2)
     cnt = verts.new_zeros(V * B).index_add_(0, key, torch.ones_like(dist2))
