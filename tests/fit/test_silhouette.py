@@ -14,7 +14,7 @@ from signsplat.config import validate
 from signsplat.errors import InputError
 from signsplat.fit import data as fit_data
 from signsplat.fit.bodyfit import FitParams
-from signsplat.fit.cameras import CameraParams
+from signsplat.fit.cameras import CameraParams, project
 from signsplat.fit.silhouette import (
     MatchCache,
     _outside_rows,
@@ -88,6 +88,38 @@ def test_terms_are_lowest_at_the_truth_and_pull_towards_it(kpm):
     (inside + cover).backward()
     # the gradient points away from the truth: a small step against it reduces the shift
     assert float(shift.grad @ shift.detach()) > 0
+
+
+@pytest.mark.parametrize("batch", [[0, 1], [1]], ids=["sequence", "second_frame"])
+def test_inside_term_is_the_mean_over_every_vertex_in_the_image(kpm, batch):
+    """The inside term samples again, with gradient, only the vertices outside the outline;
+    its value and gradients (vertices, cameras) are those of the plain mean over every vertex
+    in the image, the vertices inside clamped to 0. Frame 1 of view 2 has an empty mask: it
+    counts nothing."""
+    verts, K, R, t, tg, _, V = _three_view_scene(kpm)
+    tg.valid[2, 1] = False
+    tg.outside[2 * 2 + 1] = 50.0  # far outside everywhere: only the validity keeps it out
+    frames = torch.tensor(batch)
+    moved = verts[frames] + torch.tensor([0.03, -0.02, 0.01])
+    leaves = [x.clone().requires_grad_(True) for x in (moved, R, t)]
+    inside, _ = silhouette_terms(leaves[0], kpm.model.faces, K, leaves[1], leaves[2], tg, frames)
+    grads = torch.autograd.grad(inside, leaves)
+
+    ref_leaves = [x.clone().requires_grad_(True) for x in (moved, R, t)]
+    uv, z = project(ref_leaves[0], K, ref_leaves[1], ref_leaves[2])
+    H, W = tg.height, tg.width
+    B = len(frames)
+    grid = (uv / uv.new_tensor([W - 1, H - 1]) * 2 - 1).reshape(V * B, 1, -1, 2)
+    d = torch.nn.functional.grid_sample(_outside_rows(tg, frames), grid, align_corners=True,
+                                        padding_mode="border").reshape(V, B, -1)
+    w = ((z > 0.05) & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1)
+         & (uv[..., 1] < H - 2) & tg.valid[:, frames][..., None]).float()
+    ref = ((d.clamp(0, 10) ** 2 * w).sum(-1) / w.sum(-1).clamp(min=1)).sum() / B
+    ref_grads = torch.autograd.grad(ref, ref_leaves)
+    assert float(ref.detach()) > 1.0  # the moved body is partly outside
+    assert float(inside.detach()) == pytest.approx(float(ref.detach()), rel=1e-5)
+    for g, r in zip(grads, ref_grads):
+        assert torch.allclose(g, r, rtol=1e-4, atol=1e-6 * float(r.abs().max()))
 
 
 def test_the_outline_is_not_pulled_inwards(kpm):
