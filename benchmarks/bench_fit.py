@@ -75,8 +75,14 @@ def check_plan(checkout: Path, work: Path, scene: str, args) -> None:
     out = snakemake(checkout, work, scene, args, dry=True).communicate()[0]
     jobs = set(re.findall(r"^(\w+)\s+\d+$", out, re.M)) - {"total"}
     if "fit_smplx" not in jobs or jobs - {"fit_smplx", "body_model"}:
+        hint = ""
+        if re.search(r"Updated input files: models/", out):
+            # a fresh checkout's (git worktree's) committed models are newer than the outputs
+            hint = (f"\n{checkout}: its models/ files are newer than the linked outputs (a "
+                    "fresh checkout?); if they are the same models, make them older: find "
+                    f"{checkout}/models -maxdepth 1 -type f -exec touch -d 2000-01-01 {{}} +")
         raise SystemExit(f"{checkout}: the workflow would run {sorted(jobs) or 'nothing'}, "
-                         f"not only the fit:\n{out[-3000:]}")
+                         f"not only the fit:\n{out[-3000:]}{hint}")
 
 
 def fit_row(work: Path, scene: str) -> tuple[dict, pd.DataFrame]:
