@@ -239,7 +239,6 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     """
     V = K.shape[0]
     B = verts.shape[0]
-    T = targets.valid.shape[1]
     H, W = targets.height, targets.width
     uv, z = project(verts, K, R, t) if projected is None else projected  # (V,B,N,2), (V,B,N)
     with torch.no_grad():
@@ -251,8 +250,9 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
         grid = torch.addcmul(uv.new_tensor(-1.0), uv.detach(),
                              uv.new_tensor([2 / (W - 1), 2 / (H - 1)]))
         grid = grid.nan_to_num_(nan=2.0, posinf=2.0, neginf=-2.0).clamp_(-2, 2)
-        d = torch.nn.functional.grid_sample(_outside_rows(targets, frames),
-                                            grid.reshape(V * B, 1, -1, 2), align_corners=True,
+        maps = _outside_rows(targets, frames)  # (V*B,1,H,W), row v * B + b
+        d = torch.nn.functional.grid_sample(maps, grid.reshape(V * B, 1, -1, 2),
+                                            align_corners=True,
                                             padding_mode="border").reshape(V, B, -1)
         # the inside term's value and gradient come from the vertices outside the outline
         # only (clamped at 0 inside): they alone are sampled again, with gradient
@@ -274,10 +274,9 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     M, P = len(out_n), matches.count
     at = uv[torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
             torch.cat([out_n, matches.start, matches.end])]
-    frame_rows = frames.to(out_v.device)[out_b]
-    d_out = bilinear(targets.outside, out_v * T + frame_rows, at[:M])[:, 0]
-    per_image = uv.new_zeros(V * B).index_add_(0, out_v * B + out_b,
-                                                d_out.clamp(min=0, max=clamp_px) ** 2)
+    image = out_v * B + out_b
+    d_out = bilinear(maps, image, at[:M])[:, 0]
+    per_image = uv.new_zeros(V * B).index_add_(0, image, d_out.clamp(min=0, max=clamp_px) ** 2)
     inside = (per_image / counted.reshape(-1)).sum() / max(B, 1)
     if P == 0:
         return inside, verts.new_zeros(())
