@@ -2,18 +2,20 @@
 
     python benchmarks/bench_fit.py --baseline /path/to/old/checkout --scene clip \\
         --configfile config/config.yaml config/footage.yaml [--results results] [--threads 1] \\
-        [--set sequences=config/scenes/suite/sequences.tsv] [--work /tmp/signsplat-bench-fit]
+        [--one-at-a-time] [--set sequences=config/scenes/suite/sequences.tsv] \\
+        [--work /tmp/signsplat-bench-fit]
 
 Both checkouts' workflows fit the sequence from the same inputs: the sequence's `frames`, `sim`
 and `perception` folders and the results' `_assets` are linked into `--work/<label>`, and the
 two `fit_smplx` jobs run at the same time, each with `--threads` threads (default 1: one core
-each), Snakemake started in each checkout so that each imports its own `signsplat`. A run
-stops before fitting if anything but the fit (and the body model) would run.
+each), or with `--one-at-a-time` the baseline's and then this checkout's, each alone (what
+threads gain shows only so), Snakemake started in each checkout so that each imports its own
+`signsplat`. A run stops before fitting if anything but the fit (and the body model) would run.
 
 Prints and appends one row per checkout to `benchmarks/results/fit_time.parquet`: date, label,
-commit, scene, threads, `wall_s` (the rule's own benchmark seconds), `fit_s` and the fit's
-stages (`stage_<name>_s`, the fit log's seconds), the fit log's evaluation figures (`eval_*`)
-and `max_param_diff`, the largest absolute difference of any SMPL-X parameter from the
+commit, scene, threads, `runs` (side by side or one at a time), `wall_s` (the rule's own
+benchmark seconds), `fit_s` and the fit's stages (`stage_<name>_s`, the fit log's seconds), the
+fit log's evaluation figures (`eval_*`) and `max_param_diff`, the largest absolute difference of any SMPL-X parameter from the
 baseline's fit (0: the change left the fit as it was). The machine's speed varies from day to
 day: compare the two rows of one run, not seconds across runs.
 """
@@ -123,6 +125,10 @@ def main(argv=None) -> int:
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="more --config values for both workflows (e.g. the sequences sheet)")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--one-at-a-time", action="store_true",
+                   help="run the baseline's fit, then this checkout's, each alone with every "
+                        "thread (as `make demo` runs the studio6 fit: --threads 2), instead of "
+                        "both at once")
     p.add_argument("--work", type=Path, default=Path("/tmp/signsplat-bench-fit"))
     args = p.parse_args(argv)
     checkouts = {"baseline": args.baseline.resolve(), "current": ROOT}
@@ -135,19 +141,27 @@ def main(argv=None) -> int:
     for label, checkout in checkouts.items():
         prepare(args.results.resolve(), args.scene, work[label])
         check_plan(checkout, work[label], args.scene, args)
-    procs = {label: snakemake(c, work[label], args.scene, args, dry=False)
-             for label, c in checkouts.items()}
-    for label, proc in procs.items():
+    def finish(label: str, proc: subprocess.Popen) -> None:
         out = proc.communicate()[0]
         if proc.returncode != 0:
             raise SystemExit(f"{checkouts[label]}: the fit failed (exit {proc.returncode}); "
                              f"log {work[label]}/_logs/{args.scene}/fit_smplx.log\n{out[-2000:]}")
+
+    if args.one_at_a_time:
+        for label, c in checkouts.items():
+            finish(label, snakemake(c, work[label], args.scene, args, dry=False))
+    else:
+        procs = {label: snakemake(c, work[label], args.scene, args, dry=False)
+                 for label, c in checkouts.items()}
+        for label, proc in procs.items():
+            finish(label, proc)
     rows, fits = [], {}
     for label in checkouts:
         row, fits[label] = fit_row(work[label], args.scene)
         rows.append({"date": dt.date.today().isoformat(), "label": label,
                      "commit": commits[label], "scene": args.scene,
-                     "threads": args.threads, **row})
+                     "threads": args.threads,
+                     "runs": "one at a time" if args.one_at_a_time else "side by side", **row})
     for row in rows:
         row["max_param_diff"] = max_difference(fits[row["label"]], fits["baseline"])
     df = pd.DataFrame(rows)

@@ -16,9 +16,9 @@ The term: a body vertex seen in both frames (a point z-buffer per image, see
 ``| (uv_b - uv_a) - F(p) |^2`` in squared pixels, clamped at ``clamp_px^2``, averaged over the
 pair's vertices, summed over pairs and divided by the frames of the batch (like the keypoint
 and silhouette terms). Which vertices and their target motions are chosen without gradient,
-every ``rematch_every`` steps (a :class:`~signsplat.fit.silhouette.MatchCache`); the gradient
-flows through both frames' projections, so the term constrains the motion between frames and
-never the absolute position (the keypoints and masks keep that).
+every ``flow_rematch_every`` steps of the stage (a :class:`~signsplat.fit.silhouette.MatchCache`);
+the gradient flows through both frames' projections, so the term constrains the motion between
+frames and never the absolute position (the keypoints and masks keep that).
 
 Memory: the flow fields, ``pairs x H x W x 8`` bytes (``studio6``: 6 views, 60 frames, gaps
 1, 2, 4 -> 1,038 pairs, 544 MB at 256 x 256).
@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
+
+from signsplat.fit.pool import map_threads
 
 #: OpenCV's DIS presets by name (config ``fit.multiview.flow.preset``)
 PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
@@ -192,19 +194,31 @@ def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: 
     empty = torch.zeros(0, dtype=torch.int64, device=dev)
     if len(sel) == 0:
         return FlowMatches(empty, empty, uv.new_zeros((0, 2)), frames_np.copy())
-    with torch.no_grad():
-        vis = visible_vertices(uv.detach(), z.detach(), targets.width, targets.height, near)
-        view, a = targets.view[sel], la[sel]
-        keep = vis[view, a] & vis[view, lb[sel]]  # (S,N): seen in both frames
-        if max_vertices > 0:
-            found = keep.sum(1, keepdim=True)
-            step = torch.div(found + max_vertices - 1, max_vertices, rounding_mode="floor")
-            keep = keep & ((keep.cumsum(1) - 1) % step.clamp(min=1) == 0)
-        s_idx, n_idx = torch.nonzero(keep, as_tuple=True)
-        f = bilinear(targets.flow, sel[s_idx], uv.detach()[view[s_idx], a[s_idx], n_idx])
-        ok = torch.isfinite(f).all(-1)
-        s_idx, n_idx, f = s_idx[ok], n_idx[ok], f[ok]
-    return FlowMatches(sel[s_idx], n_idx, f.to(uv.dtype), frames_np.copy())
+    uv, z = uv.detach(), z.detach()
+    view_of = targets.view[sel]
+
+    def one_view(v: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The pairs of view ``v`` (their rows of ``sel`` ascending): pair, vertex, flow."""
+        with torch.no_grad():
+            pairs = sel[view_of == v]
+            vis = visible_vertices(uv[v:v + 1], z[v:v + 1], targets.width, targets.height,
+                                   near)[0]  # (B,N)
+            a = la[pairs]
+            keep = vis[a] & vis[lb[pairs]]  # (S,N): seen in both frames
+            if max_vertices > 0:
+                found = keep.sum(1, keepdim=True)
+                step = torch.div(found + max_vertices - 1, max_vertices, rounding_mode="floor")
+                keep = keep & ((keep.cumsum(1) - 1) % step.clamp(min=1) == 0)
+            s_idx, n_idx = torch.nonzero(keep, as_tuple=True)
+            f = bilinear(targets.flow, pairs[s_idx], uv[v, a[s_idx], n_idx])
+            ok = torch.isfinite(f).all(-1)
+            return pairs[s_idx[ok]], n_idx[ok], f[ok]
+
+    # the views are independent: side by side on the fit's threads, in view order (the
+    # targets list their pairs view by view, so the matches come in the same order)
+    parts = map_threads(one_view, [int(v) for v in torch.unique(view_of)])
+    pair, vertex, f = (torch.cat(x) for x in zip(*parts))
+    return FlowMatches(pair, vertex, f.to(uv.dtype), frames_np.copy())
 
 
 def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,

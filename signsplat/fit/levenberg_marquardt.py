@@ -391,7 +391,8 @@ def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 
     Per-frame groups form a banded system; ``cameras`` and ``betas`` (global unknowns) are
     eliminated by a Schur complement.
 
-    ``stage.iterations`` bounds the iterations; ``sel`` must be the whole sequence. Returns
+    ``stage.iterations`` bounds the iterations, ``stage.tolerance`` ends them earlier; ``sel``
+    must be the whole sequence. Returns
     the objective after each iteration (same scale as the other stages' losses: mean over
     frames, without the shape prior).
     """
@@ -440,7 +441,8 @@ def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 
             history.append(cost / max(T, 1))
             log.debug("lm %s iteration %d: objective %.6g, damping %.2g", stage.name, it,
                       history[-1], lam)
-            if not improved or history[-2] - history[-1] < 1e-6 * max(history[-2], 1e-9):
+            if not improved or history[-2] - history[-1] < stage.tolerance * max(history[-2],
+                                                                                  1e-9):
                 break
         resid.store(x)
         for n in blocks:

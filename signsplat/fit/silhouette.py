@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 
 from signsplat.fit.cameras import project
 from signsplat.fit.flow import bilinear
+from signsplat.fit.pool import map_threads
 
 
 @dataclass
@@ -181,27 +182,31 @@ def match_contours(verts: torch.Tensor, faces: torch.Tensor, R: torch.Tensor, t:
         contour_np = contour.cpu().numpy()
         uv_np = uv.detach().cpu().double().numpy()
     edges_np = edges.cpu().numpy()
-    rows: list[tuple] = []
     frames_np = frames.cpu().numpy()
-    for v in range(V):
-        for b in range(B):
-            c = targets.contours[v * T + int(frames_np[b])]
-            ids = np.nonzero(contour_np[v, b])[0]
-            if len(c) == 0 or len(ids) == 0:
-                continue
-            p0, p1 = uv_np[v, b, edges_np[ids, 0]], uv_np[v, b, edges_np[ids, 1]]
-            k = min(candidates, len(ids))
-            _, near = cKDTree(0.5 * (p0 + p1)).query(c, k=k)
-            near = near.reshape(len(c), k)
-            a, d = p0[near], p1[near] - p0[near]  # (M,k,2)
-            frac = np.clip(((c[:, None] - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12),
-                           0.0, 1.0)
-            gap = ((a + frac[..., None] * d - c[:, None]) ** 2).sum(-1)
-            best = gap.argmin(1)
-            r = np.arange(len(c))
-            chosen = edges_np[ids[near[r, best]]]
-            rows.append((np.full(len(c), v), np.full(len(c), b), chosen[:, 0], chosen[:, 1],
-                         frac[r, best], c))
+
+    def match_image(vb: tuple[int, int]) -> tuple | None:
+        v, b = vb
+        c = targets.contours[v * T + int(frames_np[b])]
+        ids = np.nonzero(contour_np[v, b])[0]
+        if len(c) == 0 or len(ids) == 0:
+            return None
+        p0, p1 = uv_np[v, b, edges_np[ids, 0]], uv_np[v, b, edges_np[ids, 1]]
+        k = min(candidates, len(ids))
+        _, near = cKDTree(0.5 * (p0 + p1)).query(c, k=k)
+        near = near.reshape(len(c), k)
+        a, d = p0[near], p1[near] - p0[near]  # (M,k,2)
+        frac = np.clip(((c[:, None] - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12),
+                       0.0, 1.0)
+        gap = ((a + frac[..., None] * d - c[:, None]) ** 2).sum(-1)
+        best = gap.argmin(1)
+        r = np.arange(len(c))
+        chosen = edges_np[ids[near[r, best]]]
+        return (np.full(len(c), v), np.full(len(c), b), chosen[:, 0], chosen[:, 1],
+                frac[r, best], c)
+
+    # the images are independent: side by side on the fit's threads, rows in image order
+    rows = [r for r in map_threads(match_image, [(v, b) for v in range(V) for b in range(B)])
+            if r is not None]
     dev = verts.device
     if not rows:
         empty = torch.zeros(0, dtype=torch.int64, device=dev)

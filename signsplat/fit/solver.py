@@ -61,15 +61,18 @@ class Stage:
     #: Levenberg-Marquardt, cameras and betas fixed: signsplat.fit.levenberg_marquardt; lr
     #: unused)
     optimizer: str
+    #: lm: stop after an iteration that lowers the objective by less than this fraction
+    tolerance: float
     parts: dict[str, float] = field(default_factory=dict)  # keypoint part weights
     lr_scale: dict[str, float] = field(default_factory=dict)  # per group, relative to lr
     sigma_px: float | None = None  # robust-kernel scale of this stage (None: the problem's)
     #: weights of the mask terms (signsplat.fit.silhouette): {"inside": w, "cover": w} in
     #: px^-2; none given = the masks are not used and nothing is computed
     silhouette: dict[str, float] = field(default_factory=dict)
-    #: Adam steps between two contour matchings of the cover term and two choices of the
-    #: flow term's vertices (1 = every step)
+    #: Adam steps between two contour matchings of the cover term (1 = every step)
     rematch_every: int = 1
+    #: Adam steps between two choices of the flow term's vertices (None: rematch_every)
+    flow_rematch_every: int | None = None
     #: weight of the optical-flow term (signsplat.fit.flow) in px^-2; 0 = the images are not
     #: read and no flow is computed
     flow: float = 0.0
@@ -99,12 +102,14 @@ class Stage:
         if bad:
             raise ValueError(f"stage {cfg.get('name')!r}: unknown group(s) {sorted(bad)}; "
                              f"known {list(GROUPS)}")
-        optional = {k: cfg[k] for k in ("sigma_px", "rematch_every", "flow") if k in cfg}
+        optional = {k: cfg[k] for k in ("sigma_px", "rematch_every", "flow_rematch_every",
+                                        "flow") if k in cfg}
         return cls(name=cfg["name"], iterations=int(cfg["iterations"]), lr=float(cfg["lr"]),
                    groups=groups, smooth=bool(cfg["smooth"]),
                    warm_start=bool(cfg["warm_start"]),
                    final_lr_fraction=float(cfg["final_lr_fraction"]),
-                   optimizer=cfg["optimizer"], parts=dict(cfg.get("parts", {})),
+                   optimizer=cfg["optimizer"], tolerance=float(cfg["tolerance"]),
+                   parts=dict(cfg.get("parts", {})),
                    lr_scale=dict(cfg.get("lr_scale", {})),
                    silhouette=dict(cfg.get("silhouette", {})), **optional)
 
@@ -332,7 +337,8 @@ def _run_adam(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     opt = torch.optim.Adam(groups)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
-    cache, flow_cache = MatchCache(stage.rematch_every), MatchCache(stage.rematch_every)
+    cache = MatchCache(stage.rematch_every)
+    flow_cache = MatchCache(stage.flow_rematch_every or stage.rematch_every)
     for it in range(stage.iterations):
         frac = it / max(stage.iterations - 1, 1)
         scale = stage.final_lr_fraction + (1 - stage.final_lr_fraction) * 0.5 * (
