@@ -445,6 +445,34 @@ def test_lm_stage_reaches_the_exact_solution_from_a_tilted_pelvis(kpm):
     assert lm_loss < adam_loss, (lm_loss, adam_loss)
 
 
+def test_lm_stage_stops_at_its_tolerance(kpm):
+    """An iteration that lowers the objective by less than ``tolerance`` of it is the last."""
+    from signsplat.fit.bodyfit import FitParams
+    from signsplat.fit.cameras import CameraParams
+    from signsplat.fit.levenberg_marquardt import run_lm
+    from signsplat.fit.solver import make_problem
+
+    T, V = 4, 3
+    gt = random_motion(T, seed=9)
+    rig = synthetic_rig(V, arc=120)
+    problem = make_problem(kpm, observe(kpm, gt, rig, noise_px=2.0), _cfg({}), np.arange(T))
+    init = {k: np.asarray(v) + 0.05 for k, v in gt.items()
+            if k not in ("leye_pose", "reye_pose", "betas")}
+    init["betas"] = gt["betas"][:1]
+
+    def run(tolerance):
+        stage = make_stage(name="j", iterations=40, lr=1.0, optimizer="lm", sigma_px=5.0,
+                           groups=["root", "body", "hands", "face"], tolerance=tolerance)
+        return run_lm(problem, FitParams(T, 10, 10, init=init), CameraParams(rig, fixed=[0]),
+                      stage)
+
+    loose, tight = run(1e-2), run(1e-9)
+    assert 1 < len(loose) < len(tight) < 40, (len(loose), len(tight))
+    assert tight[-1] <= loose[-1] and np.isfinite(tight).all()
+    falls = -np.diff(loose) / np.asarray(loose[:-1])
+    assert (falls[:-1] >= 1e-2).all() and falls[-1] < 1e-2  # it stopped at the first small one
+
+
 def test_lm_objective_equals_the_stage_loss(kpm):
     """The LM stage minimises exactly the Adam stages' objective (times T): every term,
     including smoothness, upright, hand prior, shape prior and the camera anchor."""

@@ -15,6 +15,7 @@ from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams, project
 from signsplat.fit.flow import (
     FlowTargets,
+    batch_positions,
     bilinear,
     flow_targets,
     flow_term,
@@ -173,6 +174,66 @@ def test_flow_matches_are_kept_until_due_and_stay_finite_in_hard_cases(kpm):
     val = flow_term(bad_uv, torch.where(torch.rand_like(z) < 0.1, -z, z), targets, frames,
                     CLAMP)
     assert torch.isfinite(val)
+
+
+def _matches_of_every_pair_at_once(uv, z, targets, frames, max_vertices):
+    """match_flow as one computation over every view's pairs (the reference: the function
+    works view by view on the fit's threads)."""
+    la, lb = batch_positions(frames, targets.a), batch_positions(frames, targets.b)
+    sel = torch.nonzero((la >= 0) & (lb >= 0)).flatten()
+    vis = visible_vertices(uv, z, targets.width, targets.height)
+    view, a = targets.view[sel], la[sel]
+    keep = vis[view, a] & vis[view, lb[sel]]
+    step = torch.div(keep.sum(1, keepdim=True) + max_vertices - 1, max_vertices,
+                     rounding_mode="floor")
+    keep = keep & ((keep.cumsum(1) - 1) % step.clamp(min=1) == 0)
+    s_idx, n_idx = torch.nonzero(keep, as_tuple=True)
+    f = bilinear(targets.flow, sel[s_idx], uv[view[s_idx], a[s_idx], n_idx])
+    ok = torch.isfinite(f).all(-1)
+    return sel[s_idx[ok]], n_idx[ok], f[ok]
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_flow_matches_view_by_view_equal_every_pair_at_once(kpm, threads):
+    _gt, rig, verts, K, R, t = _scene(kpm, T=3)
+    W, H = int(rig.width[0]), int(rig.height[0])
+    targets = _true_flow(verts, K, R, t, W, H, [(0, 1), (1, 2), (0, 2)])
+    uv, z = project(verts, K, R, t)
+    frames = torch.arange(3)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        got = match_flow(uv, z, targets, frames, max_vertices=150)
+    finally:
+        torch.set_num_threads(before)
+    pair, vertex, motion = _matches_of_every_pair_at_once(uv, z, targets, frames, 150)
+    assert got.count > 1000 and len(set(got.pair.tolist())) == 9
+    assert torch.equal(got.pair, pair) and torch.equal(got.vertex, vertex)
+    assert torch.equal(got.motion, motion)
+
+
+def test_stage_chooses_the_flow_vertices_every_flow_rematch_every_steps(kpm, monkeypatch):
+    import signsplat.fit.flow as flow_module
+
+    gt, rig, verts, K, R, t = _scene(kpm, seed=4)
+    W, H = int(rig.width[0]), int(rig.height[0])
+    targets = _true_flow(verts, K, R, t, W, H, [(0, 1)])
+    calls = []
+    real = flow_module.match_flow
+    monkeypatch.setattr(flow_module, "match_flow",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
+    init["betas"] = gt["betas"][:1]
+    problem = make_problem(kpm, observe(kpm, gt, rig), validate({}, "stages/fit.schema.yaml"),
+                           np.arange(2), flow=targets)
+    for every, want in ((None, 7), (3, 3)):
+        calls.clear()
+        extra = {} if every is None else {"flow_rematch_every": every}
+        stage = make_stage(name="flow", iterations=7, lr=0.001, groups=("root",), smooth=False,
+                           flow=10.0, rematch_every=1, **extra)
+        run_stage(problem, FitParams(2, 10, 10, init=init), CameraParams(rig, fixed=[0, 1, 2]),
+                  stage)
+        assert len(calls) == want, (every, len(calls))  # steps 0, 3 and 6 with every 3
 
 
 def test_flow_targets_from_images_of_a_moving_texture():
