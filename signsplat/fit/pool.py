@@ -1,8 +1,9 @@
 """The fit's independent pieces of work on torch's thread count.
 
-Why: parts of the fit are many small operations (the Levenberg-Marquardt stage's Jacobian
-columns, the silhouette stage's per-image contour matching) that use one core each whatever
-torch's thread count; run side by side in threads they use the cores the fit was given.
+Why: the silhouette stage's matchings (the contour of each image, the flow term's vertices of
+each view) are loops of small operations that use one core whatever torch's thread count; run
+side by side in threads they use the cores the fit was given (docs/fit.md, "The fit on its two
+threads").
 """
 
 from __future__ import annotations
