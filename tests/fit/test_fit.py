@@ -466,7 +466,7 @@ def test_lm_stage_stops_at_its_tolerance(kpm):
         return run_lm(problem, FitParams(T, 10, 10, init=init), CameraParams(rig, fixed=[0]),
                       stage)
 
-    loose, tight = run(1e-2), run(1e-9)
+    loose, tight = run(1e-2), run(1e-6)
     assert 1 < len(loose) < len(tight) < 40, (len(loose), len(tight))
     assert tight[-1] <= loose[-1] and np.isfinite(tight).all()
     falls = -np.diff(loose) / np.asarray(loose[:-1])
