@@ -15,9 +15,10 @@ threads gain shows only so), Snakemake started in each checkout so that each imp
 Prints and appends one row per checkout to `benchmarks/results/fit_time.parquet`: date, label,
 commit, scene, threads, `runs` (side by side or one at a time), `wall_s` (the rule's own
 benchmark seconds), `fit_s` and the fit's stages (`stage_<name>_s`, the fit log's seconds), the
-fit log's evaluation figures (`eval_*`) and `max_param_diff`, the largest absolute difference of any SMPL-X parameter from the
-baseline's fit (0: the change left the fit as it was). The machine's speed varies from day to
-day: compare the two rows of one run, not seconds across runs.
+fit log's evaluation figures (`eval_*`) and `max_param_diff`, the largest absolute difference
+of any SMPL-X parameter from the baseline's fit (0: the change left the fit as it was). The
+machine's speed varies from day to day: compare the two rows of one run, not seconds across
+runs.
 """
 
 from __future__ import annotations
@@ -141,6 +142,7 @@ def main(argv=None) -> int:
     for label, checkout in checkouts.items():
         prepare(args.results.resolve(), args.scene, work[label])
         check_plan(checkout, work[label], args.scene, args)
+
     def finish(label: str, proc: subprocess.Popen) -> None:
         out = proc.communicate()[0]
         if proc.returncode != 0:

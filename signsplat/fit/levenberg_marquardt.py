@@ -392,9 +392,8 @@ def run_lm(problem, params, cams, stage, sel: slice = slice(None), chunk: int = 
     eliminated by a Schur complement.
 
     ``stage.iterations`` bounds the iterations, ``stage.tolerance`` ends them earlier; ``sel``
-    must be the whole sequence. Returns
-    the objective after each iteration (same scale as the other stages' losses: mean over
-    frames, without the shape prior).
+    must be the whole sequence. Returns the objective after each iteration (same scale as the
+    other stages' losses: mean over frames, without the shape prior).
     """
     from scipy.linalg import LinAlgError
 
