@@ -76,10 +76,12 @@ def project(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Ten
     Returns ``uv (V,B,N,2)`` pixels and ``depth (V,B,N)`` metres. Depth is clamped to
     ``min_depth`` in the division so points behind a camera stay finite (callers mask them).
     """
-    xc = torch.einsum("vij,bnj->vbni", R, points) + t[:, None, None, :]
-    # unbind, not three slices: its backward stacks the gradients instead of filling a zero
-    # tensor of the whole (V,B,N,3) per slice
-    x, y, z = xc.unbind(-1)
+    V, B, N = R.shape[0], points.shape[0], points.shape[1]
+    # one matrix product (V*3,3) @ (3,B*N), laid out (V,3,B,N) so that x, y and z are whole
+    # blocks; unbind, not three slices: its backward stacks the gradients instead of filling a
+    # zero tensor of the whole (V,3,B,N) per slice
+    xc = torch.addmm(t.reshape(V * 3, 1), R.reshape(V * 3, 3), points.reshape(B * N, 3).T)
+    x, y, z = xc.reshape(V, 3, B, N).unbind(1)
     zc = z.clamp_min(min_depth)
     x = x / zc
     y = y / zc
@@ -246,6 +248,15 @@ def pnp_ransac(object_points: np.ndarray, image_points: np.ndarray, K: np.ndarra
         return None
     pose = _accepted_pose(rvec, tvec, obj, img, K, inl)
     return None if pose is None else (*pose, len(inl) / len(obj))
+
+
+def take(uv: torch.Tensor, view: torch.Tensor, batch: torch.Tensor, point: torch.Tensor
+         ) -> torch.Tensor:
+    """``uv[view, batch, point]`` (M,C) of projections ``uv (V,B,N,C)`` through one flat
+    ``index_select``: its backward adds into the gradient directly, where the backward of
+    advanced indexing sorts the indices first (slow at the fit's million points)."""
+    V, B, N = uv.shape[:3]
+    return uv.reshape(V * B * N, -1).index_select(0, (view * B + batch) * N + point)
 
 
 def projection_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 import torch
 
+from signsplat.fit.cameras import take
 from signsplat.fit.pool import map_threads
 
 #: OpenCV's DIS presets by name (config ``fit.multiview.flow.preset``)
@@ -241,7 +242,7 @@ def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: t
     view = targets.view[pair]
     a, b = batch_positions(frames, targets.a[pair]), batch_positions(frames, targets.b[pair])
     # one gather for both ends (each gather's backward fills a zero tensor of uv's size)
-    ends = uv[view.repeat(2), torch.cat([b, a]), vert.repeat(2)]
+    ends = take(uv, view.repeat(2), torch.cat([b, a]), vert.repeat(2))
     moved = ends[:len(vert)] - ends[len(vert):]
     r2 = ((moved - matches.motion) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     P = targets.num_pairs

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from signsplat.fit.cameras import project
+from signsplat.fit.cameras import project, take
 from signsplat.fit.flow import bilinear
 from signsplat.fit.pool import map_threads
 
@@ -277,8 +277,8 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     # one gather for every point with gradient (each gather's backward fills a zero tensor of
     # uv's size): the outside vertices, then the matched edges' starts and ends
     M, P = len(out_n), matches.count
-    at = uv[torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
-            torch.cat([out_n, matches.start, matches.end])]
+    at = take(uv, torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
+              torch.cat([out_n, matches.start, matches.end]))
     image = out_v * B + out_b
     d_out = bilinear(maps, image, at[:M])[:, 0]
     per_image = uv.new_zeros(V * B).index_add_(0, image, d_out.clamp(min=0, max=clamp_px) ** 2)

@@ -99,6 +99,40 @@ def test_project_matches_opencv_convention():
     assert uv[0, 0, 1, 1] < uv[0, 0, 0, 1]  # up is image -y
 
 
+def test_project_is_each_views_pinhole_with_skew():
+    """Every view, frame and point against the pinhole written out point by point (three
+    views, so a mixed-up layout of views and axes shows)."""
+    rng = np.random.default_rng(3)
+    rig = _ring(3)
+    K = rig.K.copy()
+    K[:, 0, 1] = [0.0, 0.7, -1.3]  # skew
+    K[:, 1, 1] *= [1.0, 1.1, 0.9]
+    X = rng.normal([0, 1.2, 0], 0.3, (2, 5, 3))
+    uv, z = cameras.project(torch.as_tensor(X), *(torch.as_tensor(a) for a in (K, rig.R, rig.t)))
+    assert uv.shape == (3, 2, 5, 2) and z.shape == (3, 2, 5)
+    for v in range(3):
+        for b in range(2):
+            for n in range(5):
+                c = rig.R[v] @ X[b, n] + rig.t[v]
+                u = K[v, 0, 0] * c[0] / c[2] + K[v, 0, 1] * c[1] / c[2] + K[v, 0, 2]
+                w = K[v, 1, 1] * c[1] / c[2] + K[v, 1, 2]
+                assert uv[v, b, n].numpy() == pytest.approx([u, w], abs=1e-9)
+                assert z[v, b, n].item() == pytest.approx(c[2], abs=1e-12)
+
+
+def test_take_is_indexing_with_its_gradient():
+    torch.manual_seed(0)
+    uv = torch.randn(3, 4, 7, 2, dtype=torch.float64, requires_grad=True)
+    view, batch, point = (torch.randint(0, s, (40,)) for s in (3, 4, 7))  # with repeats
+    weights = torch.randn(40, 2, dtype=torch.float64)
+    got = cameras.take(uv, view, batch, point)
+    (g_take,) = torch.autograd.grad((got * weights).sum(), uv)
+    want = uv[view, batch, point]
+    (g_index,) = torch.autograd.grad((want * weights).sum(), uv)
+    assert torch.equal(got, want)
+    assert torch.allclose(g_take, g_index, atol=1e-12)
+
+
 def test_pnp_recovers_pose_from_noisy_points():
     rng = np.random.default_rng(1)
     rig = _ring(3)
