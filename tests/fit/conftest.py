@@ -23,6 +23,15 @@ def _same_numerics_whatever_ran_before():
     torch.use_deterministic_algorithms(deterministic, warn_only=warn_only)
 
 
+@pytest.fixture
+def torch_threads():
+    """``torch_threads(n)`` sets torch's thread count for the rest of the test; the count from
+    before is restored afterwards."""
+    before = torch.get_num_threads()
+    yield torch.set_num_threads
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="session")
 def kpm(proxy_body_path):
     from signsplat.fit.bodyfit import load_keypoint_model

@@ -194,18 +194,14 @@ def _matches_of_every_pair_at_once(uv, z, targets, frames, max_vertices):
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_flow_matches_view_by_view_equal_every_pair_at_once(kpm, threads):
+def test_flow_matches_view_by_view_equal_every_pair_at_once(kpm, threads, torch_threads):
     _gt, rig, verts, K, R, t = _scene(kpm, T=3)
     W, H = int(rig.width[0]), int(rig.height[0])
     targets = _true_flow(verts, K, R, t, W, H, [(0, 1), (1, 2), (0, 2)])
     uv, z = project(verts, K, R, t)
     frames = torch.arange(3)
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        got = match_flow(uv, z, targets, frames, max_vertices=150)
-    finally:
-        torch.set_num_threads(before)
+    torch_threads(threads)
+    got = match_flow(uv, z, targets, frames, max_vertices=150)
     pair, vertex, motion = _matches_of_every_pair_at_once(uv, z, targets, frames, 150)
     assert got.count > 1000 and len(set(got.pair.tolist())) == 9
     assert torch.equal(got.pair, pair) and torch.equal(got.vertex, vertex)

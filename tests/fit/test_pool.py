@@ -6,16 +6,10 @@ import torch
 from signsplat.fit.pool import map_threads
 
 
-@pytest.fixture
-def two_threads():
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    yield
-    torch.set_num_threads(before)
-
-
-def test_map_threads_keeps_the_order_the_grad_mode_and_the_errors(two_threads):
+def test_map_threads_keeps_the_order_the_grad_mode_and_the_errors(torch_threads):
     import threading
+
+    torch_threads(2)
 
     seen = set()
 
@@ -41,13 +35,8 @@ def test_map_threads_keeps_the_order_the_grad_mode_and_the_errors(two_threads):
     assert map_threads(fails, []) == []
 
 
-def test_map_threads_runs_in_turn_on_one_thread():
+def test_map_threads_runs_in_turn_on_one_thread(torch_threads):
     import threading
 
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        assert map_threads(lambda i: threading.get_ident(), range(4)) == \
-            [threading.get_ident()] * 4
-    finally:
-        torch.set_num_threads(before)
+    torch_threads(1)
+    assert map_threads(lambda i: threading.get_ident(), range(4)) == [threading.get_ident()] * 4
