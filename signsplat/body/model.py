@@ -90,19 +90,32 @@ def rigid_transforms(rotmats: Tensor, rest_joints: Tensor, parents: Tensor,
     return posed_joints, A
 
 
+def corrective_rows(posedirs: Tensor) -> Tensor | None:
+    """Indices of the pose features whose correctives (rows of ``posedirs``, one per feature)
+    are not all zero; None when every row has some. The proxy body's correctives use the
+    diagonal of each joint's rotation only (two thirds of the rows are zero); the official
+    SMPL-X files have none zero."""
+    used = (posedirs != 0).any(dim=1)
+    return None if bool(used.all()) else torch.nonzero(used).squeeze(1)
+
+
 def pose_shaped(v_shaped: Tensor, rest_joints: Tensor, pose: Tensor, posedirs: Tensor,
                 lbs_weights: Tensor, parents: Tensor, levels: list[Tensor],
-                transl: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+                transl: Tensor, pose_rows: Tensor | None = None
+                ) -> tuple[Tensor, Tensor, Tensor]:
     """SMPL-X posing of shaped vertices: pose blend shapes, forward kinematics, LBS.
 
     v_shaped (B, V, 3), rest_joints (B, J, 3), pose (B, J, 3) axis-angle, posedirs
-    ((J - 1) * 9, V * 3), lbs_weights (V, J), transl (B, 3). Returns the posed vertices
-    (B, V, 3), joints (B, J, 3) (both translated) and the LBS transforms A (B, J, 4, 4).
+    ((J - 1) * 9, V * 3), or only its rows ``pose_rows`` (R,) when given (the others being
+    zero: :func:`corrective_rows`), lbs_weights (V, J), transl (B, 3). Returns the posed
+    vertices (B, V, 3), joints (B, J, 3) (both translated) and the LBS transforms A (B, J, 4, 4).
     """
     B = pose.shape[0]
     rotmats = axis_angle_to_matrix(pose)
     eye = torch.eye(3, dtype=pose.dtype, device=pose.device)
     pose_feature = (rotmats[:, 1:] - eye).reshape(B, -1)
+    if pose_rows is not None:
+        pose_feature = pose_feature.index_select(1, pose_rows)
     v_posed = v_shaped + (pose_feature @ posedirs).reshape(B, -1, 3)
     joints, A = rigid_transforms(rotmats, rest_joints, parents, levels)
     verts = skin_points(v_posed, lbs_weights, A, transl)
@@ -187,6 +200,12 @@ class BodyModel(nn.Module):
         # (V, 3, 486) -> (486, V*3) as in smplx
         posedirs = np.asarray(arrays["posedirs"]).reshape(V * 3, -1).T
         self.register_buffer("posedirs", f(posedirs))
+        # what posing multiplies: the rows of posedirs that are not all zero (a third of the
+        # proxy's), with their pose features' indices (None: all rows)
+        rows = corrective_rows(self.posedirs)
+        self.register_buffer("pose_rows", rows, persistent=False)
+        self.register_buffer("_posedirs_used", None if rows is None else self.posedirs[rows],
+                             persistent=False)
         self.register_buffer("J_regressor", f(arrays["J_regressor"]))
         self.register_buffer("lbs_weights", f(arrays["weights"]))
         parents = np.asarray(arrays["kintree_table"][0], dtype=np.int64).copy()
@@ -313,8 +332,10 @@ class BodyModel(nn.Module):
         """Core LBS: coeffs (B, num_betas + num_expression), pose (B, 55, 3), transl (B, 3)."""
         v_shaped = self.v_template + torch.einsum("bl,vkl->bvk", coeffs, self.shapedirs)
         rest_joints = torch.einsum("jv,bvk->bjk", self.J_regressor, v_shaped)
-        verts, joints, A = pose_shaped(v_shaped, rest_joints, pose, self.posedirs,
-                                       self.lbs_weights, self.parents, self.levels(), transl)
+        posedirs = self.posedirs if self.pose_rows is None else self._posedirs_used
+        verts, joints, A = pose_shaped(v_shaped, rest_joints, pose, posedirs,
+                                       self.lbs_weights, self.parents, self.levels(), transl,
+                                       self.pose_rows)
         return BodyOutput(verts, joints, A, v_shaped)
 
     def levels(self) -> list[Tensor]:

@@ -214,7 +214,12 @@ class KeypointModel(torch.nn.Module):
         self.register_buffer("_shapedirs", m.shapedirs[idx])
         V = m.v_template.shape[0]
         cols = (idx[:, None] * 3 + torch.arange(3, device=ref.device)).reshape(-1)
-        self.register_buffer("_posedirs", m.posedirs[:, cols])
+        from signsplat.body.model import corrective_rows
+
+        posedirs = m.posedirs[:, cols]
+        rows = corrective_rows(posedirs)
+        self.register_buffer("_pose_rows", rows)
+        self.register_buffer("_posedirs", posedirs if rows is None else posedirs[rows])
         self.register_buffer("_weights", m.lbs_weights[idx])
         self.register_buffer("_J_template", m.J_regressor @ m.v_template)
         self.register_buffer("_J_dirs", torch.einsum("jv,vkl->jkl", m.J_regressor, m.shapedirs))
@@ -247,7 +252,8 @@ class KeypointModel(torch.nn.Module):
         v_shaped = self._v_template + torch.einsum("bl,vkl->bvk", coeffs, self._shapedirs)
         rest_joints = self._J_template + torch.einsum("bl,jkl->bjk", coeffs, self._J_dirs)
         verts, joints, A = pose_shaped(v_shaped, rest_joints, pose, self._posedirs,
-                                       self._weights, m.parents, m.levels(), transl)
+                                       self._weights, m.parents, m.levels(), transl,
+                                       self._pose_rows)
         kp = torch.einsum("ks,bsc->bkc", self._Wv, verts) + torch.einsum("kj,bjc->bkc",
                                                                          self._Wj, joints)
         return joints, self._offset(kp, A)

@@ -203,3 +203,20 @@ def test_per_joint_pose_shapes_are_flattened(proxy):
     torch.testing.assert_close(a.vertices, b.vertices)
     c = proxy(body_pose=bp[0].reshape(63).numpy())  # numpy and unbatched inputs work too
     torch.testing.assert_close(c.vertices, proxy(body_pose=bp[:1].reshape(1, 63)).vertices)
+
+
+def test_corrective_rows_skip_only_all_zero_rows(proxy):
+    from signsplat.body.model import corrective_rows
+
+    P = torch.ones(4, 6)
+    P[1] = 0.0
+    P[3, :5] = 0.0  # one non-zero entry keeps a row
+    assert corrective_rows(P).tolist() == [0, 2, 3]
+    assert corrective_rows(torch.ones(3, 2)) is None
+    # the proxy body's correctives use each joint's rotation diagonal: posing multiplies those
+    rows = proxy.pose_rows
+    assert rows is not None and len(rows) <= 486 // 3
+    assert proxy.posedirs[rows].abs().sum(1).min() > 0
+    left_out = torch.ones(486, dtype=torch.bool)
+    left_out[rows] = False
+    assert proxy.posedirs[left_out].abs().max() == 0
