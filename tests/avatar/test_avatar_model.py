@@ -217,3 +217,26 @@ def test_pose_net_runs_over_the_vertices_or_the_points(tiny_body, on):
     (g1.scales.sum() + g1.colors.sum()).backward()
     assert all(p.grad is not None and float(p.grad.abs().max()) > 0
                for p in model.omega.trunk.parameters())
+
+
+def test_conv_net_head_is_a_linear_layer_per_point():
+    """The networks' head (a 1x1 convolution in the trunk's layout) is the linear layer applied
+    to every point's trunk features, in value and gradient."""
+    from signsplat.avatar.model import ConvNet1d
+
+    torch.manual_seed(0)
+    net = ConvNet1d(6, 8, (3, 4, 1), kernel=5, layers=2)
+    torch.nn.init.normal_(net.head.weight)
+    torch.nn.init.normal_(net.head.bias)
+    x = torch.randn(2, 6, 40, dtype=torch.float64)
+    net = net.double()
+    heads = net(x)
+    assert [h.shape for h in heads] == [(2, 40, 3), (2, 40, 4), (2, 40, 1)]
+    ref = torch.nn.functional.linear(net.trunk(x).transpose(1, 2), net.head.weight,
+                                     net.head.bias)
+    torch.testing.assert_close(torch.cat(heads, -1), ref, rtol=0, atol=1e-12)
+    w = torch.randn(2, 40, 8, dtype=torch.float64)
+    grads = torch.autograd.grad((torch.cat(heads, -1) * w).sum(), list(net.parameters()))
+    ref_grads = torch.autograd.grad((ref * w).sum(), list(net.parameters()))
+    for a, b in zip(grads, ref_grads):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-10)
