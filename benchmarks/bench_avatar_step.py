@@ -39,7 +39,10 @@ point; the default runs it over the mesh vertices).
 
 ``--baseline PATH`` runs the same benchmark against another checkout (e.g. ``git worktree add
 /tmp/base <commit>``) in the same run: the two alternate (ABBA order over the rounds), and the
-summary prints baseline / current ratios per part. The worker processes import ``signsplat`` from
+summary prints baseline / current ratios per part. With ``--side-by-side`` the checkouts'
+workers of one configuration run at the same time instead (``--threads 1``: one core each),
+so that both meet the same machine; on this machine, whose speed drifts by 10-15 % from one
+process to the next, that is the steadier comparison. The worker processes import ``signsplat`` from
 the checkout they measure (``PYTHONPATH``); the instrumentation uses only names that both have
 (missing ones fall into ``other``).
 
@@ -384,7 +387,8 @@ def git_commit(path: Path) -> str:
         return "unknown"
 
 
-def run_worker(code: Path, args, points: int, threads: int, extra: dict | None = None) -> dict:
+def start_worker(code: Path, args, points: int, threads: int,
+                 extra: dict | None = None) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(code))
     config = json.loads(args.config_json)
     if extra:
@@ -395,11 +399,15 @@ def run_worker(code: Path, args, points: int, threads: int, extra: dict | None =
            "--results", str(Path(args.results).resolve()), "--scene", args.scene,
            "--points", str(points), "--threads", str(threads), "--steps", str(args.steps),
            "--warmup", str(args.warmup), "--config-json", json.dumps(config)]
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(code))
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=str(code))
+
+
+def finish_worker(proc: subprocess.Popen) -> dict:
+    out, err = proc.communicate()
     if proc.returncode != 0:
-        raise SystemExit(f"worker failed ({code}, {points} points, {threads} threads):\n"
-                         f"{proc.stderr[-4000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+        raise SystemExit(f"worker failed ({' '.join(proc.args[-16:-2])}):\n{err[-4000:]}")
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def summarise(rows: list[dict]):
@@ -491,6 +499,10 @@ def main(argv=None) -> int:
     ap.add_argument("--config-json", default="{}", help="avatar config overrides (both codes)")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
                     help="also run this checkout with these config overrides (repeatable)")
+    ap.add_argument("--side-by-side", action="store_true",
+                    help="run the codes' workers of a configuration at the same time (each "
+                    "with its threads: 1 thread each for two codes on 2 cores), so that both "
+                    "meet the same machine; without it they run one after the other")
     ap.add_argument("--out", default=str(OUT / "avatar_step.parquet"))
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--code", default=str(ROOT), help=argparse.SUPPRESS)
@@ -520,8 +532,14 @@ def main(argv=None) -> int:
         for pts in args.points:
             for thr in args.threads:
                 order = codes if rnd % 2 == 0 else codes[::-1]
-                for lab, path in order:
-                    r = run_worker(path, args, pts, thr, extras.get(lab))
+                if args.side_by_side:
+                    procs = [start_worker(path, args, pts, thr, extras.get(lab))
+                             for lab, path in order]
+                    done = [finish_worker(p) for p in procs]
+                else:
+                    done = [finish_worker(start_worker(path, args, pts, thr, extras.get(lab)))
+                            for lab, path in order]
+                for (lab, path), r in zip(order, done):
                     r.update(label=lab, commit=commits[lab], points_asked=pts, round=rnd)
                     rows.append(r)
                     print(f"  round {rnd} {lab:<8} {r['points']} points {thr} thread(s): step "
@@ -539,9 +557,8 @@ def main(argv=None) -> int:
     summary = {
         "date": time.strftime("%Y-%m-%d %H:%M"), "machine": f"{platform.machine()} "
         f"{os.cpu_count()} cores", "load_before": load_before, "load_after": load_after,
-        "minutes": (time.time() - t_start) / 60, "codes": {lab: {"path": str(p),
-                                                                  "commit": commits[lab]}
-                                                            for lab, p in codes},
+        "minutes": (time.time() - t_start) / 60, "side_by_side": args.side_by_side,
+        "codes": {lab: {"path": str(p), "commit": commits[lab]} for lab, p in codes},
         "args": {k: v for k, v in vars(args).items() if k not in ("worker", "code")},
         "table": lines,
     }
