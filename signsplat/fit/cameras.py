@@ -259,26 +259,6 @@ def take(uv: torch.Tensor, view: torch.Tensor, batch: torch.Tensor, point: torch
     return uv.reshape(V * B * N, -1).index_select(0, (view * B + batch) * N + point)
 
 
-def project_at(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-               view: torch.Tensor, batch: torch.Tensor, point: torch.Tensor,
-               min_depth: float = 1e-3) -> torch.Tensor:
-    """``project(points, K, R, t)[0][view, batch, point]`` (M,2), computed for those M points
-    only: where a term needs the gradient of a few of the projections, projecting every point
-    with gradient and gathering costs a backward over all of them and a zero fill of their
-    size. ``points (B,N,3)``; the other arguments as in :func:`project`."""
-    B, N = points.shape[:2]
-    X = points.reshape(B * N, 3).index_select(0, batch * N + point)  # (M,3)
-    Rm = R.reshape(-1, 9).index_select(0, view)  # (M,9) row-major
-    tm, Km = t.index_select(0, view), K.reshape(-1, 9).index_select(0, view)
-    xc = [Rm[:, 3 * i] * X[:, 0] + Rm[:, 3 * i + 1] * X[:, 1] + Rm[:, 3 * i + 2] * X[:, 2]
-          + tm[:, i] for i in range(3)]
-    zc = xc[2].clamp_min(min_depth)
-    x, y = xc[0] / zc, xc[1] / zc
-    u = Km[:, 0] * x + Km[:, 1] * y + Km[:, 2]
-    v = Km[:, 4] * y + Km[:, 5]
-    return torch.stack([u, v], dim=-1)
-
-
 def projection_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(V,3,4) ``K [R|t]`` of cameras K, R (V,3,3), t (V,3)."""
     return np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))

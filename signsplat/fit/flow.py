@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import torch
 
-from signsplat.fit.cameras import project_at, take
+from signsplat.fit.cameras import take
 from signsplat.fit.pool import map_threads
 
 #: OpenCV's DIS presets by name (config ``fit.multiview.flow.preset``)
@@ -223,15 +223,12 @@ def match_flow(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: 
 
 
 def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: torch.Tensor,
-              clamp_px: float, cache=None, max_vertices: int = 0,
-              scene: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
+              clamp_px: float, cache=None, max_vertices: int = 0) -> torch.Tensor:
     """The flow term of the batch: ``uv (V,B,N,2)``, ``z (V,B,N)`` the projections of the
     batch's vertices, ``frames (B,)`` their indices in the targets. ``cache``: a
     :class:`~signsplat.fit.silhouette.MatchCache` keeping the matches between re-matchings
-    (None: match every call); ``max_vertices``: see :func:`match_flow`; ``scene``: the
-    ``(verts, K, R, t)`` that ``uv`` projects, to project the matched vertices again with
-    gradient (``uv`` then needs none); None: the gradient comes through ``uv``. Zero when no
-    pair of frames lies inside the batch."""
+    (None: match every call); ``max_vertices``: see :func:`match_flow`. Zero when no pair of
+    frames lies inside the batch."""
     matches = None if cache is None else cache.current(frames)
     if matches is None:
         matches = match_flow(uv, z, targets, frames, max_vertices=max_vertices)
@@ -244,9 +241,8 @@ def flow_term(uv: torch.Tensor, z: torch.Tensor, targets: FlowTargets, frames: t
     pair, vert = matches.pair, matches.vertex
     view = targets.view[pair]
     a, b = batch_positions(frames, targets.a[pair]), batch_positions(frames, targets.b[pair])
-    # both ends at once (each gather's backward fills a zero tensor of uv's size)
-    ends_at = (view.repeat(2), torch.cat([b, a]), vert.repeat(2))
-    ends = take(uv, *ends_at) if scene is None else project_at(*scene, *ends_at)
+    # one gather for both ends (each gather's backward fills a zero tensor of uv's size)
+    ends = take(uv, view.repeat(2), torch.cat([b, a]), vert.repeat(2))
     moved = ends[:len(vert)] - ends[len(vert):]
     r2 = ((moved - matches.motion) ** 2).sum(-1).clamp(max=clamp_px ** 2)
     P = targets.num_pairs

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from signsplat.fit.cameras import project, project_at
+from signsplat.fit.cameras import project, take
 from signsplat.fit.flow import bilinear
 from signsplat.fit.pool import map_threads
 
@@ -240,16 +240,12 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     K, R, t (V,...) cameras. Vertices at or behind the ``near`` plane are ignored by both terms.
     ``cache``: reuse the contour matches of earlier calls (:class:`MatchCache`); None matches
     every call. The cover term's gradient flows through the matched vertices either way.
-    ``projected``: ``project(verts, K, R, t)`` when the caller has it already (its gradient is
-    not used: the few vertices the terms take the gradient of are projected again).
+    ``projected``: ``project(verts, K, R, t)`` when the caller has it already.
     """
     V = K.shape[0]
     B = verts.shape[0]
     H, W = targets.height, targets.width
-    if projected is None:
-        with torch.no_grad():
-            projected = project(verts, K, R, t)
-    uv, z = projected  # (V,B,N,2), (V,B,N)
+    uv, z = project(verts, K, R, t) if projected is None else projected  # (V,B,N,2), (V,B,N)
     with torch.no_grad():
         front = z > near
         in_image = front & (uv[..., 0] > 1) & (uv[..., 0] < W - 2) & (uv[..., 1] > 1) & \
@@ -278,11 +274,11 @@ def silhouette_terms(verts: torch.Tensor, faces: torch.Tensor, K: torch.Tensor, 
     if cache is not None:
         cache.age += 1
     iv, ib = matches.view, matches.batch
-    # every point with gradient projected again, at once: the outside vertices, then the
-    # matched edges' starts and ends
+    # one gather for every point with gradient (each gather's backward fills a zero tensor of
+    # uv's size): the outside vertices, then the matched edges' starts and ends
     M, P = len(out_n), matches.count
-    at = project_at(verts, K, R, t, torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
-                    torch.cat([out_n, matches.start, matches.end]))
+    at = take(uv, torch.cat([out_v, iv, iv]), torch.cat([out_b, ib, ib]),
+              torch.cat([out_n, matches.start, matches.end]))
     image = out_v * B + out_b
     d_out = bilinear(maps, image, at[:M])[:, 0]
     per_image = uv.new_zeros(V * B).index_add_(0, image, d_out.clamp(min=0, max=clamp_px) ** 2)

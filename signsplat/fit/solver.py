@@ -259,9 +259,7 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         terms["anchor"] = obj.anchor(sub, {k: v[sel] for k, v in problem.anchor.items()}, w)
     if sil or fl:
         frames = torch.arange(problem.obs.shape[1], device=dev)[sel]
-        # without gradient: the terms project the vertices they take it of again
-        with torch.no_grad():
-            projected = project(body.vertices, K, R, t)
+        projected = project(body.vertices, K, R, t)
     if sil:
         inside, cover = silhouette_terms(body.vertices, problem.kpm.model.faces, K, R, t,
                                          problem.silhouette, frames, cache=matches,
@@ -272,8 +270,7 @@ def loss_terms(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         terms["flow"] = stage.flow * flow_term(*projected, problem.flow, frames,
                                                problem.flow_settings["clamp_px"],
                                                cache=flow_matches,
-                                               max_vertices=problem.flow_settings["max_vertices"],
-                                               scene=(body.vertices, K, R, t))
+                                               max_vertices=problem.flow_settings["max_vertices"])
     return terms
 
 

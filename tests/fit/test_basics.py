@@ -133,25 +133,6 @@ def test_take_is_indexing_with_its_gradient():
     assert torch.allclose(g_take, g_index, atol=1e-12)
 
 
-def test_project_at_is_the_gathered_projection_with_its_gradient():
-    torch.manual_seed(1)
-    rig = _ring(3)
-    points = (torch.randn(4, 7, 3, dtype=torch.float64) * 0.3 + torch.tensor([0, 1.2, 0.0]))
-    points[0, 0] = torch.as_tensor(rig.centres()[1]) + 1e-5  # at a camera: depth clamped
-    K, R, t = (torch.as_tensor(a).clone() for a in (rig.K, rig.R, rig.t))
-    K[:, 0, 1] = 0.7  # skew
-    args = [x.requires_grad_() for x in (points, K, R, t)]
-    view, batch, point = (torch.randint(0, s, (60,)) for s in (3, 4, 7))  # with repeats
-    view[0], batch[0], point[0] = 1, 0, 0
-    weights = torch.randn(60, 2, dtype=torch.float64)
-    got = cameras.project_at(*args, view, batch, point)
-    want = cameras.take(cameras.project(*args)[0], view, batch, point)
-    assert torch.allclose(got, want, rtol=1e-12, atol=1e-9)
-    for a, b in zip(torch.autograd.grad((got * weights).sum(), args),
-                    torch.autograd.grad((want * weights).sum(), args)):
-        assert torch.allclose(a, b, rtol=1e-10, atol=1e-6)
-
-
 def test_pnp_recovers_pose_from_noisy_points():
     rng = np.random.default_rng(1)
     rig = _ring(3)
