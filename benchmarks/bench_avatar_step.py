@@ -41,9 +41,9 @@ point; the default runs it over the mesh vertices).
 /tmp/base <commit>``) in the same run: the two alternate (ABBA order over the rounds), and the
 summary prints baseline / current ratios per part. With ``--side-by-side`` the checkouts'
 workers of one configuration run at the same time instead (``--threads 1``: one core each),
-so that both meet the same machine; on this machine, whose speed drifts by 10-15 % from one
-process to the next, that is the steadier comparison. The worker processes import ``signsplat`` from
-the checkout they measure (``PYTHONPATH``); the instrumentation uses only names that both have
+so that both meet the same machine where its speed drifts from one process to the next
+(``docs/avatar_step.md``). The worker processes import ``signsplat`` from the checkout they
+measure (``PYTHONPATH``); the instrumentation uses only names that both have
 (missing ones fall into ``other``).
 
 Writes ``benchmarks/results/avatar_step.parquet`` (one row per checkout, points, threads, part,
