@@ -406,7 +406,7 @@ def start_worker(code: Path, args, points: int, threads: int,
 def finish_worker(proc: subprocess.Popen) -> dict:
     out, err = proc.communicate()
     if proc.returncode != 0:
-        raise SystemExit(f"worker failed ({' '.join(proc.args[-16:-2])}):\n{err[-4000:]}")
+        raise SystemExit(f"worker failed ({' '.join(proc.args[2:])}):\n{err[-4000:]}")
     return json.loads(out.strip().splitlines()[-1])
 
 
