@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -48,8 +49,10 @@ COLMAP_COMPARE = register_table(Table(
         "centre_error_m_max": "float64 worst camera centre error, metres",
         "focal_error_pct": "float64 mean |f - f_gt| / f_gt in percent (NaN when fixed/unknown)",
         "alignment": "str umeyama | orientation (degenerate centres) | '' (nothing to align)",
-        "seconds": "float64 wall-clock seconds of the run",
-        "cpu_seconds": "float64 CPU seconds of the run over all threads (NaN when unknown)",
+        "seconds": "float64 wall-clock seconds of the run; features and matches it shares with "
+                   "an earlier setting count as long as they took there (the run alone)",
+        "cpu_seconds": "float64 CPU seconds of the run over all threads, counted the same way "
+                       "(NaN when unknown)",
         "status": "str 'ok' or the reason of a failure (failed/error/crashed: ...)",
         "ply": "str PLY of the run's points in the world frame, relative to the table ('' none)",
     },
@@ -332,25 +335,30 @@ def compare_scene(frames: pd.DataFrame, frames_dir: str | os.PathLike, cameras: 
     scene = str(frames["scene"].iloc[0]) if len(frames) else "scene"
     gt = GroundTruth(cameras, cameras_source)
     rows, best = [], (np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
+    if work_root is not None:
+        Path(work_root).mkdir(parents=True, exist_ok=True)
     for spec in plan_runs(frames, cfg):
         images = image_inputs(frames, frames_dir, gt, spec.keys)
-        for st in cfg.settings:
-            setting = st.name
-            log.info("%s %s (%s): %d images", scene, spec.method, setting, len(images))
-            result = run_colmap(images, cfg.options(st, threads), work_root=work_root)
-            row, al = colmap_row(scene, spec, setting, st.known_intrinsics, images, result, gt)
-            if al is not None and len(result.points):
-                pts = al.similarity.apply(result.points)
-                if ply_dir is not None:
-                    path = Path(ply_dir) / f"{spec.method}_{setting}.ply"
-                    write_points_ply(path, pts, result.colors,
-                                     comment=f"COLMAP {spec.method} {setting}, world frame")
-                    row["ply"] = os.path.relpath(path, table_dir or Path(ply_dir))
-                if len(pts) > len(best[0]):
-                    best = (pts, result.colors)
-            log.info("-> %s: %d/%d registered, %s points, %.1f s", row["status"],
-                     row["registered"], row["images"], row["points3d"], row["seconds"])
-            rows.append(row)
+        # the settings of one image set share its features and matches (signsplat.colmap.run)
+        with tempfile.TemporaryDirectory(prefix="colmap_shared_", dir=work_root) as share:
+            for st in cfg.settings:
+                log.info("%s %s (%s): %d images", scene, spec.method, st.name, len(images))
+                result = run_colmap(images, cfg.options(st, threads), work_root=work_root,
+                                    share_dir=share)
+                row, al = colmap_row(scene, spec, st.name, st.known_intrinsics, images, result,
+                                     gt)
+                if al is not None and len(result.points):
+                    pts = al.similarity.apply(result.points)
+                    if ply_dir is not None:
+                        path = Path(ply_dir) / f"{spec.method}_{st.name}.ply"
+                        write_points_ply(path, pts, result.colors,
+                                         comment=f"COLMAP {spec.method} {st.name}, world frame")
+                        row["ply"] = os.path.relpath(path, table_dir or Path(ply_dir))
+                    if len(pts) > len(best[0]):
+                        best = (pts, result.colors)
+                log.info("-> %s: %d/%d registered, %s points, %.1f s", row["status"],
+                         row["registered"], row["images"], row["points3d"], row["seconds"])
+                rows.append(row)
     if fit_cameras is not None:
         rows.extend(fit_rows(scene, fit_cameras, gt, fit_eval))
     return to_frame(rows), best[0], best[1]

@@ -5,6 +5,12 @@ rig, or views x frames of a sequence) and returns a :class:`ColmapResult`. COLMA
 result, not an exception: fewer than two images registered, an exception raised by pycolmap or
 even a process abort inside the C++ code end up in ``ColmapResult.status``.
 
+Runs of the same images under several settings share work through a ``share_dir``: SIFT
+features depend only on ``max_num_features``, and the matches on that and the cameras (known
+or estimated intrinsics), so a later run copies the database an earlier one left there instead
+of extracting or matching again. A run's ``seconds`` count the shared steps as long as they
+took when they were made: the cost of that run alone.
+
 Conventions: poses are returned in the project's OpenCV convention (``x_cam = R @ x + t``,
 which is COLMAP's ``cam_from_world``) and intrinsics with pixel centres at integer coordinates
 (COLMAP puts them at +0.5, so ``cx_opencv = cx_colmap - 0.5``). The reconstruction's frame
@@ -13,6 +19,7 @@ and scale are COLMAP's own (see :mod:`signsplat.colmap.align` to compare with gr
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 import shutil
@@ -192,12 +199,83 @@ def _collect(rec, result: ColmapResult) -> None:
         result.reproj_error_px = float(rec.compute_mean_reprojection_error())
 
 
+def _shared_names(options: ColmapOptions) -> tuple[str, str]:
+    """Names in a ``share_dir`` of the database with the features of ``options`` and of the
+    one with their matches too."""
+    cams = "known" if options.known_intrinsics else "estimated"
+    return (f"features_{options.max_num_features}",
+            f"matches_{options.max_num_features}_{cams}")
+
+
+def _store(share: Path, name: str, db_path: Path, seconds: float, cpu_seconds: float) -> None:
+    """Leave a copy of the database in ``share`` with the time it took to make (the JSON
+    written last marks it complete)."""
+    tmp = share / f".{name}.db.tmp"
+    shutil.copyfile(db_path, tmp)
+    os.replace(tmp, share / f"{name}.db")
+    tmp = share / f".{name}.json.tmp"
+    tmp.write_text(json.dumps({"seconds": seconds, "cpu_seconds": cpu_seconds}))
+    os.replace(tmp, share / f"{name}.json")
+
+
+def _restore(share: Path | None, name: str, db_path: Path) -> tuple[float, float] | None:
+    """Copy a stored database to ``db_path``: the seconds and CPU seconds it took to make, or
+    None when ``share`` has none of that name."""
+    if share is None or not (share / f"{name}.json").exists():
+        return None
+    spent = json.loads((share / f"{name}.json").read_text())
+    shutil.copyfile(share / f"{name}.db", db_path)
+    return float(spent["seconds"]), float(spent["cpu_seconds"])
+
+
+def _matched_database(pycolmap, images: list[ImageInput], image_dir: Path, db_path: Path,
+                      options: ColmapOptions, share: Path | None) -> tuple[float, float]:
+    """Features and verified matches of ``images`` in ``db_path``: made here, or copied from
+    ``share`` where an earlier run left them (and left there for later runs). Returns the
+    seconds and CPU seconds the copied steps took when they were made."""
+    features, matches = _shared_names(options)
+    done = _restore(share, matches, db_path)
+    if done is not None:
+        return done
+    t0, c0 = time.perf_counter(), time.process_time()
+    before = _restore(share, features, db_path)
+    if before is None:
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = options.num_threads
+        extraction.sift.max_num_features = options.max_num_features
+        pycolmap.extract_features(
+            str(db_path), str(image_dir), image_names=[im.name for im in images],
+            camera_mode=pycolmap.CameraMode.PER_FOLDER,
+            reader_options=pycolmap.ImageReaderOptions(), extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        if share is not None:
+            _store(share, features, db_path, time.perf_counter() - t0, time.process_time() - c0)
+        before = (0.0, 0.0)
+    if options.known_intrinsics:
+        _set_known_intrinsics(pycolmap, db_path, images)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.num_threads
+    pycolmap.match_exhaustive(
+        str(db_path), matching_options=matching,
+        pairing_options=pycolmap.ExhaustivePairingOptions(),
+        verification_options=pycolmap.TwoViewGeometryOptions(), device=pycolmap.Device.cpu,
+    )
+    if share is not None:
+        _store(share, matches, db_path, before[0] + time.perf_counter() - t0,
+               before[1] + time.process_time() - c0)
+    return before
+
+
 def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
-                      options: ColmapOptions) -> ColmapResult:
+                      options: ColmapOptions,
+                      share_dir: str | os.PathLike | None = None) -> ColmapResult:
     """Run COLMAP in this process inside ``work_dir`` (an empty folder the caller owns).
 
-    pycolmap's log goes to this process's stderr. Exceptions raised by pycolmap are caught
-    and recorded in ``status``; a C++ abort would end the process (see :func:`run_colmap`).
+    ``share_dir``: a folder for these images alone whose stored features and matches are
+    reused and left for later runs (module docstring). pycolmap's log goes to this process's
+    stderr. Exceptions raised by pycolmap are caught and recorded in ``status``; a C++ abort
+    would end the process (see :func:`run_colmap`).
     """
     import pycolmap
 
@@ -210,26 +288,11 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
         result.seconds = result.cpu_seconds = 0.0
         return result
     _stage_images(images, image_dir)
+    share = Path(share_dir) if share_dir is not None else None
     t0, c0 = time.perf_counter(), time.process_time()
+    earlier = (0.0, 0.0)  # seconds and CPU seconds of the steps copied from share_dir
     try:
-        reader = pycolmap.ImageReaderOptions()
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = options.num_threads
-        extraction.sift.max_num_features = options.max_num_features
-        pycolmap.extract_features(
-            str(db_path), str(image_dir), image_names=[im.name for im in images],
-            camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
-            extraction_options=extraction, device=pycolmap.Device.cpu,
-        )
-        if options.known_intrinsics:
-            _set_known_intrinsics(pycolmap, db_path, images)
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = options.num_threads
-        pycolmap.match_exhaustive(
-            str(db_path), matching_options=matching,
-            pairing_options=pycolmap.ExhaustivePairingOptions(),
-            verification_options=pycolmap.TwoViewGeometryOptions(), device=pycolmap.Device.cpu,
-        )
+        earlier = _matched_database(pycolmap, images, image_dir, db_path, options, share)
         db = pycolmap.Database.open(str(db_path))
         try:
             result.num_features = int(db.num_keypoints())
@@ -243,12 +306,12 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
             initial_image_pair_callback=lambda: starts.append(1))
         result.num_initial_pairs = len(starts)
     except PYCOLMAP_ERRORS as exc:
-        result.seconds = time.perf_counter() - t0
-        result.cpu_seconds = time.process_time() - c0
+        result.seconds = earlier[0] + time.perf_counter() - t0
+        result.cpu_seconds = earlier[1] + time.process_time() - c0
         result.status = f"error: {type(exc).__name__}: {str(exc).strip()[:300]}"
         return result
-    result.seconds = time.perf_counter() - t0
-    result.cpu_seconds = time.process_time() - c0
+    result.seconds = earlier[0] + time.perf_counter() - t0
+    result.cpu_seconds = earlier[1] + time.process_time() - c0
     result.num_models = len(recs)
     if recs:
         best = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
@@ -266,31 +329,35 @@ def run_colmap_inline(images: list[ImageInput], work_dir: str | os.PathLike,
     return result
 
 
-def _child(conn, images, work_dir, options) -> None:
+def _child(conn, images, work_dir, options, share_dir) -> None:
     """Child-process entry: run inline and send the result back through ``conn``."""
     try:
-        conn.send(run_colmap_inline(images, work_dir, options))
+        conn.send(run_colmap_inline(images, work_dir, options, share_dir))
     finally:
         conn.close()
 
 
 def run_colmap(images: list[ImageInput], options: ColmapOptions,
-               work_root: str | os.PathLike | None = None, keep: bool = False) -> ColmapResult:
+               work_root: str | os.PathLike | None = None, keep: bool = False,
+               share_dir: str | os.PathLike | None = None) -> ColmapResult:
     """Run COLMAP on ``images`` in a fresh temporary folder (under ``work_root`` if given).
 
     With ``options.isolate`` pycolmap runs in a spawned child process: if it aborts or exceeds
     ``options.timeout_seconds`` the result has status 'crashed: ...' or 'failed: timeout'.
-    The temporary folder is removed unless ``keep``.
+    The temporary folder is removed unless ``keep``. ``share_dir``: see
+    :func:`run_colmap_inline` (the caller owns and removes it).
     """
     if work_root is not None:
         Path(work_root).mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="colmap_", dir=work_root))
     try:
         if not options.isolate:
-            return run_colmap_inline(images, work, options)
+            return run_colmap_inline(images, work, options, share_dir)
         ctx = mp.get_context("spawn")
         recv, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(send, images, str(work), options), daemon=True)
+        share = None if share_dir is None else str(share_dir)
+        proc = ctx.Process(target=_child, args=(send, images, str(work), options, share),
+                           daemon=True)
         t0 = time.perf_counter()
         proc.start()
         send.close()

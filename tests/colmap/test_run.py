@@ -1,5 +1,6 @@
 """COLMAP runs on rendered rigs (signsplat.colmap.run, compare rows): success, recorded failure."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -104,3 +105,43 @@ def test_a_dying_child_is_a_recorded_crash(textured_rig):
     result = run_colmap(images + [_DiesWhenUnpickled()], ColmapOptions(**MAPPER, num_threads=1))
     assert result.status.startswith("crashed") and "exit code 3" in result.status
     assert result.registered == 0 and result.num_images == 9
+
+
+def test_settings_of_one_image_set_share_features_and_matches(textured_rig, tmp_path,
+                                                              monkeypatch):
+    """A run copies what an earlier run of the same images left in share_dir: the features
+    (same max_num_features) and the matches (same cameras too); the results are those of a run
+    that made its own, and the seconds include the copied steps' time."""
+    import pycolmap
+
+    images, _ = _inputs(textured_rig)
+    calls = []
+    for name in ("extract_features", "match_exhaustive"):
+        real = getattr(pycolmap, name)
+        monkeypatch.setattr(pycolmap, name,
+                            lambda *a, _f=real, _n=name, **k: calls.append(_n) or _f(*a, **k))
+
+    def run(known, share, **kw):
+        options = ColmapOptions(**{**MAPPER, **kw}, known_intrinsics=known, num_threads=1,
+                                isolate=False)
+        return run_colmap(images, options, share_dir=share)
+
+    share = tmp_path / "share"
+    share.mkdir()
+    first = run(True, share)
+    assert calls == ["extract_features", "match_exhaustive"]
+    relaxed = run(True, share, abs_pose_min_num_inliers=15)  # another mapper, same database
+    assert calls == ["extract_features", "match_exhaustive"]
+    estimated = run(False, share)  # other cameras: matched again on the same features
+    assert calls == ["extract_features", "match_exhaustive", "match_exhaustive"]
+    (made,) = share.glob("matches_*_known.json")  # what extraction and matching took
+    assert first.seconds >= json.loads(made.read_text())["seconds"] > 0
+    assert relaxed.seconds >= json.loads(made.read_text())["seconds"]
+
+    for shared, own in ((relaxed, run(True, None, abs_pose_min_num_inliers=15)),
+                        (estimated, run(False, None))):
+        assert shared.status == own.status == "ok"
+        assert shared.num_features == own.num_features
+        assert shared.num_verified_pairs == own.num_verified_pairs
+        assert sorted(shared.poses) == sorted(own.poses)
+        np.testing.assert_allclose(shared.points, own.points)
