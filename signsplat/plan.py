@@ -144,6 +144,16 @@ class Plan:
         cluster)."""
         return job_threads(len(self.sequences), cores)
 
+    def chain_threads(self, sequence: str, cores: int | None) -> int:
+        """Threads of a sequence's keypoint and fit jobs when the run's sequences share
+        ``cores``: a multi-view sequence keeps STAGE_THREADS (its fit is the longest job before
+        the avatars and gains from a second thread); a single-view sequence takes its share
+        (:meth:`job_threads`), so that its short chain runs beside another sequence's avatar
+        instead of holding every core while that avatar waits."""
+        if self.num_views(sequence) > 1:
+            return STAGE_THREADS
+        return self.job_threads(cores)
+
     def study_scene(self, config: dict, key: str) -> str | None:
         """Config ``<key>.scene``, or the default multi-view scene."""
         scene = config[key]["scene"]

@@ -160,3 +160,13 @@ def test_job_threads_share_the_local_cores_between_sequences():
     assert job_threads(5, 2) == 1 and job_threads(3, 4) == 1
     # no local cores given (a cluster: each job has its own): the stage's own
     assert job_threads(10, None) == 2
+
+
+def test_a_single_view_chain_shares_the_cores_and_a_multi_view_fit_keeps_two(tmp_path):
+    cfg, user = _config(tmp_path)
+    p = plan(cfg, user, root=ROOT)  # studio6 (6 cameras) and single (1)
+    # two sequences on two cores: single's keypoints and fit take one thread, beside an avatar
+    assert p.chain_threads("studio6", 2) == 2 and p.chain_threads("single", 2) == 1
+    # cores enough for both chains, or a cluster's own allocations: two threads each
+    assert p.chain_threads("single", 4) == 2 and p.chain_threads("single", None) == 2
+    assert p.chain_threads("studio6", None) == 2

@@ -59,34 +59,47 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
                            for o in line.split(", ") if not o.startswith("reports/"))
 
 
-def _jobs_by_rule(stdout: str, field: str) -> dict[str, set[int]]:
-    """rule -> the values of ``field`` over its jobs in a dry run with -p: ``threads`` from
-    the printed command's `--threads`, ``priority`` from the job's lines (0 when absent)."""
-    out: dict[str, set[int]] = {}
+def _jobs_by_rule(stdout: str, field: str, by_scene: bool = False) -> dict:
+    """rule (or with ``by_scene`` (rule, scene wildcard)) -> the values of ``field`` over its
+    jobs in a dry run with -p: ``threads`` from the printed command's `--threads`,
+    ``priority`` from the job's lines (0 when absent)."""
+    out: dict = {}
     for block in re.split(r"^\[.*\]$", stdout, flags=re.M):
         rule = re.search(r"^(?:local)?rule (\w+):$", block, re.M)
         pattern = r"--threads (\d+)" if field == "threads" else rf"^\s+{field}: (\d+)$"
         m = re.search(pattern, block, re.M)
         if rule and (m or field != "threads"):
-            out.setdefault(rule.group(1), set()).add(int(m.group(1)) if m else 0)
+            key = rule.group(1)
+            if by_scene:
+                scene = re.search(r"^\s+wildcards: .*\bscene=(\w+)", block, re.M)
+                key = (key, scene.group(1) if scene else None)
+            out.setdefault(key, set()).add(int(m.group(1)) if m else 0)
     return out
 
 
 def test_the_default_run_s_avatars_share_two_cores_after_every_fit(tmp_path):
     """On 2 cores the default config's two avatars train side by side, one thread each
     (signsplat.plan.job_threads), and only once no stage before a fit can run (priorities);
-    the stages up to the fit keep two threads; a study target (quality) keeps two threads."""
+    the stages up to the multi-view fit keep two threads, the single-view sequence's
+    keypoints and fit take one (signsplat.plan.Plan.chain_threads), so they run beside the
+    other avatar; the stitched video comes before the evaluations; a study target (quality)
+    keeps two threads."""
     res = run_snakemake("--cores", "2", "-n", "-p", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     threads = _jobs_by_rule(res.stdout, "threads")
-    for rule in ("train_avatar", "evaluate_avatar", "stitch_video"):
+    for rule in ("train_avatar", "evaluate_avatar", "stitch_video", "perception_eval"):
         assert threads.get(rule) == {1}, (rule, threads)
-    for rule in ("simulate", "segment", "detect_keypoints", "fit_smplx"):
+    for rule in ("simulate", "segment"):
         assert threads.get(rule) == {2}, (rule, threads)
+    by_scene = _jobs_by_rule(res.stdout, "threads", by_scene=True)
+    for rule in ("detect_keypoints", "fit_smplx"):
+        assert by_scene[(rule, "studio6")] == {2} and by_scene[(rule, "single")] == {1}
     prio = _jobs_by_rule(res.stdout, "priority")
     before = {p for rule in ("simulate", "segment", "detect_keypoints", "fit_smplx")
               for p in prio[rule]}
     assert min(before) > max(prio["train_avatar"]) > max(prio["colmap_compare"]), prio
+    assert prio["stitch_video"] == prio["train_avatar"]
+    assert max(prio["perception_eval"]) < min(prio["train_avatar"]), prio
     res = run_snakemake("--cores", "2", "-n", "-p", "quality", "--config",
                         f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout

@@ -32,13 +32,26 @@ def job_threads(wildcards):
     default target the sequences share the local cores, so their avatars train side by side;
     a study's target (quality, sweep, ...) keeps STAGE_THREADS. (Called per job, once the
     run's targets are known.)"""
+    return PLAN.job_threads(_shared_cores())
+
+
+def chain_threads(wildcards):
+    """`threads` of a sequence's keypoints and fit: in a run of the default target a
+    single-view sequence's share the cores (signsplat.plan.Plan.chain_threads)."""
+    return PLAN.chain_threads(wildcards.scene, _shared_cores())
+
+
+def _shared_cores():
+    """The local cores the run's sequences share: in a run of the default target only."""
     default_run = set(getattr(workflow.dag_settings, "targets", ())) <= {"all"}
-    return PLAN.job_threads(LOCAL_CORES if default_run else None)
+    return LOCAL_CORES if default_run else None
 
 
-# Job priorities: the stages up to the fit first, then avatar training, then the rest. With
-# the avatars on shared cores, none starts while a stage before a fit can run, so a fit (two
-# threads) never waits behind a one-thread avatar for a free core.
+# Job priorities: the stages up to the fit first, then avatar training and the stitched video
+# (the longest job after an avatar), then the rest (evaluations, COLMAP, the report). With the
+# avatars on shared cores, none starts while a two-thread stage before a fit can run, so a
+# multi-view fit never waits behind a one-thread avatar for a free core; a single-view
+# sequence's keypoints and fit (one thread, chain_threads) run beside an avatar.
 BEFORE_AVATAR, AVATAR = 2, 1
 
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)

@@ -87,7 +87,7 @@ rule fit_smplx:
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/fit_smplx.tsv"
     priority: BEFORE_AVATAR
-    threads: STAGE_THREADS
+    threads: chain_threads
     resources:
         mem_mb=4000,
         runtime=60,

@@ -114,7 +114,7 @@ rule detect_keypoints:
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/detect_keypoints.tsv"
     priority: BEFORE_AVATAR
-    threads: STAGE_THREADS
+    threads: chain_threads
     resources:
         mem_mb=2000,
         runtime=30,
@@ -145,8 +145,7 @@ rule perception_eval:
         f"{RESULTS}/_logs/{{scene}}/perception_eval.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/perception_eval.tsv"
-    priority: BEFORE_AVATAR
-    threads: STAGE_THREADS
+    threads: job_threads
     resources:
         mem_mb=2000,
         runtime=15,

@@ -50,6 +50,7 @@ rule stitch_video:
         f"{RESULTS}/_logs/{{scene}}/stitch_video.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/stitch_video.tsv"
+    priority: AVATAR
     threads: job_threads
     resources:
         mem_mb=3000,
