@@ -82,15 +82,15 @@ def test_the_default_run_s_avatars_share_two_cores_after_every_fit(tmp_path):
     (signsplat.plan.job_threads), and only once no stage before a fit can run (priorities);
     the stages up to the multi-view fit keep two threads, the single-view sequence's
     keypoints and fit take one (signsplat.plan.Plan.chain_threads), so they run beside the
-    other avatar; the stitched video comes before the evaluations; a study target (quality)
-    keeps two threads."""
+    other avatar; the two scenes render side by side; the stitched video comes before the
+    evaluations; a study target (quality) keeps two threads."""
     res = run_snakemake("--cores", "2", "-n", "-p", "--config", f"results={tmp_path}")
     assert res.returncode == 0, res.stderr + res.stdout
     threads = _jobs_by_rule(res.stdout, "threads")
-    for rule in ("train_avatar", "evaluate_avatar", "stitch_video", "perception_eval"):
+    for rule in ("simulate", "train_avatar", "evaluate_avatar", "stitch_video",
+                 "perception_eval"):
         assert threads.get(rule) == {1}, (rule, threads)
-    for rule in ("simulate", "segment"):
-        assert threads.get(rule) == {2}, (rule, threads)
+    assert threads.get("segment") == {2}, threads
     by_scene = _jobs_by_rule(res.stdout, "threads", by_scene=True)
     for rule in ("detect_keypoints", "fit_smplx"):
         assert by_scene[(rule, "studio6")] == {2} and by_scene[(rule, "single")] == {1}

@@ -28,10 +28,11 @@ LOCAL_CORES = getattr(workflow.global_resources.get("_cores"), "value", None)
 
 
 def job_threads(wildcards):
-    """`threads` of the stages after the fit (avatar, evaluation, stitching): in a run of the
-    default target the sequences share the local cores, so their avatars train side by side;
-    a study's target (quality, sweep, ...) keeps STAGE_THREADS. (Called per job, once the
-    run's targets are known.)"""
+    """`threads` of the simulation (which gains little from a second thread) and the stages
+    after the fit (avatar, evaluation, stitching): in a run of the default target the
+    sequences share the local cores, so their scenes render and their avatars train side by
+    side; a study's target (quality, sweep, ...) keeps STAGE_THREADS. (Called per job, once
+    the run's targets are known.)"""
     return PLAN.job_threads(_shared_cores())
 
 

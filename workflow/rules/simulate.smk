@@ -29,7 +29,7 @@ rule simulate:
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/simulate.tsv"
     priority: BEFORE_AVATAR
-    threads: STAGE_THREADS
+    threads: job_threads
     resources:
         mem_mb=3000,
         runtime=30,
