@@ -41,8 +41,8 @@ def start(checkout: Path, sim: Path, out: Path, threads: int) -> subprocess.Pope
            "--frames", str(sim / "frames.parquet"), "--cameras", str(sim / "cameras.parquet"),
            "--out", str(out / "colmap_compare.parquet"), "--ply", str(out / "points.ply"),
            "--ply-dir", str(out / "ply"), "--threads", str(threads)]
-    log = open(out / "colmap_compare.log", "w")
-    return subprocess.Popen(cmd, cwd=checkout, stdout=log, stderr=subprocess.STDOUT)
+    with open(out / "colmap_compare.log", "w") as log:  # the child keeps its own handle
+        return subprocess.Popen(cmd, cwd=checkout, stdout=log, stderr=subprocess.STDOUT)
 
 
 def main(argv=None) -> int:
