@@ -1,7 +1,9 @@
-"""What the side-by-side benchmarks share: appending their rows to a results table."""
+"""What the side-by-side benchmarks share: the commit a checkout holds, and appending their
+rows to a results table."""
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 
 import pandas as pd
@@ -17,3 +19,9 @@ def append_rows(rows: pd.DataFrame, path: Path) -> pd.DataFrame:
     rows.to_parquet(tmp, index=False)
     tmp.replace(path)
     return rows
+
+
+def commit_of(checkout: Path) -> str:
+    """The short hash of the commit ``checkout`` holds (what runs, not what is committed)."""
+    return subprocess.run(["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
+                          capture_output=True, text=True, check=True).stdout.strip()

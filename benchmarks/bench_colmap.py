@@ -24,15 +24,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from _results import append_rows  # benchmarks/_results.py
+from _results import append_rows, commit_of  # benchmarks/_results.py
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMES = ("seconds", "cpu_seconds", "ply")
-
-
-def _commit(checkout: Path) -> str:
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=checkout,
-                          capture_output=True, text=True).stdout.strip()
 
 
 def start(checkout: Path, sim: Path, out: Path, threads: int) -> subprocess.Popen:
@@ -78,7 +73,7 @@ def main(argv=None) -> int:
     for label, checkout in checkouts.items():
         t = tables[label]
         rows.append({"date": dt.datetime.now().isoformat(timespec="minutes"), "label": label,
-                     "commit": _commit(checkout), "scene": args.scene,
+                     "commit": commit_of(checkout), "scene": args.scene,
                      "threads": args.threads, "wall_s": round(walls[label], 2),
                      "sum_row_s": round(float(t.loc[t["method"] != "smplx_camera_solve",
                                                     "seconds"].sum()), 2),

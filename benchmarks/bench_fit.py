@@ -36,16 +36,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from _results import append_rows  # benchmarks/_results.py
+from _results import append_rows, commit_of  # benchmarks/_results.py
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "fit_time.parquet"
 INPUTS = ("frames", "sim", "perception")  # a sequence's folders the fit reads
-
-
-def _commit(checkout: Path) -> str:
-    return subprocess.run(["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
-                          capture_output=True, text=True, check=True).stdout.strip()
 
 
 def prepare(results: Path, scene: str, work: Path) -> None:
@@ -138,7 +133,7 @@ def main(argv=None) -> int:
         base_cache.symlink_to(cache)  # the fetched models, which a fresh worktree lacks
         print(f"linked {base_cache} -> {cache}")
     work = {label: (args.work / label).resolve() for label in checkouts}
-    commits = {label: _commit(c) for label, c in checkouts.items()}  # what runs, not what is
+    commits = {label: commit_of(c) for label, c in checkouts.items()}  # what runs, not what is
     for label, checkout in checkouts.items():
         prepare(args.results.resolve(), args.scene, work[label])
         check_plan(checkout, work[label], args.scene, args)

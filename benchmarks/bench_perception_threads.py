@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from _results import append_rows  # benchmarks/_results.py
+from _results import append_rows, commit_of  # benchmarks/_results.py
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "perception_threads.parquet"
@@ -55,11 +55,6 @@ print(json.dumps({"wall_s": time.perf_counter() - t0,
 BUSY = "import time\nwhile True: pass\n"
 
 
-def _commit(checkout: Path) -> str:
-    return subprocess.run(["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
-                          capture_output=True, text=True, check=True).stdout.strip()
-
-
 def measure(checkout: Path, sim: Path, threads: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout))
     with tempfile.TemporaryDirectory(prefix="signsplat-bench-") as out:
@@ -84,7 +79,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"{a.sim / 'frames.parquet'} not found: simulate the sequence first "
                          f"(snakemake {a.sim / 'frames.parquet'}) or pass --sim")
     checkouts = {"current": ROOT, "baseline": a.baseline.resolve()}
-    commits = {label: _commit(c) for label, c in checkouts.items()}
+    commits = {label: commit_of(c) for label, c in checkouts.items()}
     rows = []
     for condition in ("alone", "beside a busy core"):
         busy = (subprocess.Popen([sys.executable, "-c", BUSY])

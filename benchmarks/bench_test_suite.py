@@ -27,18 +27,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from _results import append_rows  # benchmarks/_results.py
+from _results import append_rows, commit_of  # benchmarks/_results.py
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "test_suite.parquet"
 LOGS = Path("/tmp/signsplat-bench")  # each run's pytest output (durations, failures)
-
-
-def _commit(checkout: Path) -> str:
-    return subprocess.run(
-        ["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
-        capture_output=True, text=True, check=True,
-    ).stdout.strip()
 
 
 def _count(summary: str, word: str) -> int:
@@ -62,7 +55,7 @@ def run_suite(label: str, checkout: Path, args: list[str], path: list[str] = ())
     log.parent.mkdir(parents=True, exist_ok=True)
     log.write_text(proc.stdout + proc.stderr)
     row = {
-        "date": dt.date.today().isoformat(), "label": label, "commit": _commit(checkout),
+        "date": dt.date.today().isoformat(), "label": label, "commit": commit_of(checkout),
         "args": shlex.join(args), "wall_s": wall,
         "cpu_user_s": after.ru_utime - before.ru_utime,
         "cpu_sys_s": after.ru_stime - before.ru_stime,
