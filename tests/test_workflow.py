@@ -37,22 +37,32 @@ def job_counts(stdout: str) -> dict[str, int]:
 
 
 def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
-    over = tmp_path / "over.yaml"  # an empty model cache: the default run needs none of it
+    cache = tmp_path / "c"  # an empty model cache: only MediaPipe's hand models are fetched
+    over = tmp_path / "over.yaml"
     over.write_text(yaml.safe_dump({"results": str(tmp_path),
-                                    "perception": {"pretrained": {"cache": str(tmp_path / "c")}}}))
+                                    "perception": {"pretrained": {"cache": str(cache)}}}))
     res = snakemake("-n", "-p", "--configfile", "config/config.yaml", str(over))
     assert res.returncode == 0, res.stderr + res.stdout
     counts = job_counts(res.stdout)
     # the sheet's two synthetic sequences (studio6: 6 cameras, single: 1): one chain each,
     # COLMAP only for the multi-view one, one stitching job for all sentences, one report;
-    # nothing fetched
+    # the models once, for studio6's right-hand fingers (its sheet row's dominant_hand)
     per_sequence = ("simulate", "segment", "detect_keypoints", "perception_eval", "fit_smplx",
                     "train_avatar", "evaluate_avatar")
     assert counts == {"body_model": 1, "gloss_library": 1, "colmap_compare": 1,
-                      "stitch_video": 1, "report": 1, "all": 1, "total": 20,
+                      "stitch_video": 1, "report": 1, "all": 1, "fetch_mediapipe": 1,
+                      "total": 21,
                       **{rule: 2 for rule in per_sequence}}
-    detect = [line for line in res.stdout.splitlines() if " -m signsplat detect-keypoints " in line]
-    assert len(detect) == 2 and all("--detectors shipped" in line for line in detect)
+    detect = {scene: job for job in res.stdout.split("\nrule ")
+              if job.startswith("detect_keypoints:")
+              for scene in re.findall(r"wildcards: scene=(\w+)", job)}
+    assert sorted(detect) == ["single", "studio6"]
+    assert all("--detectors shipped" in job for job in detect.values())
+    assert f"{cache}/hand_landmark_full.onnx" in detect["studio6"].split("output:")[0]
+    assert "hand_landmark_full.onnx" not in detect["single"]
+    assert '"hands": "mediapipe", "input_size"' in detect["studio6"]
+    assert '"hand_sides": ["right"]' in detect["studio6"]
+    assert '"hands": "model"' in detect["single"]
     # every output of the plan is under the results folder the command line gave
     outputs = re.findall(r"^    output: (.+)$", res.stdout, re.M)
     assert outputs and all(o.startswith(str(tmp_path)) for line in outputs
@@ -83,8 +93,11 @@ def test_the_default_run_s_avatars_share_two_cores_after_every_fit(tmp_path):
     the stages up to the multi-view fit keep two threads, the single-view sequence's
     keypoints and fit take one (signsplat.plan.Plan.chain_threads), so they run beside the
     other avatar; the two scenes render side by side; the stitched video comes before the
-    evaluations; a study target (quality) keeps two threads."""
-    res = run_snakemake("--cores", "2", "-n", "-p", "--config", f"results={tmp_path}")
+    evaluations; the models studio6's keypoints need are fetched among the stages before the
+    fits; a study target (quality) keeps two threads."""
+    empty = {"pretrained": {"cache": str(tmp_path / "c")}}  # the models are to be fetched
+    res = run_snakemake("--cores", "2", "-n", "-p", "--config", f"results={tmp_path}",
+                        f"perception={empty}")
     assert res.returncode == 0, res.stderr + res.stdout
     threads = _jobs_by_rule(res.stdout, "threads")
     for rule in ("simulate", "train_avatar", "evaluate_avatar", "stitch_video",
@@ -95,7 +108,8 @@ def test_the_default_run_s_avatars_share_two_cores_after_every_fit(tmp_path):
     for rule in ("detect_keypoints", "fit_smplx"):
         assert by_scene[(rule, "studio6")] == {2} and by_scene[(rule, "single")] == {1}
     prio = _jobs_by_rule(res.stdout, "priority")
-    before = {p for rule in ("simulate", "segment", "detect_keypoints", "fit_smplx")
+    before = {p for rule in ("simulate", "fetch_mediapipe", "segment", "detect_keypoints",
+                             "fit_smplx")
               for p in prio[rule]}
     assert min(before) > max(prio["train_avatar"]) > max(prio["colmap_compare"]), prio
     assert prio["stitch_video"] == prio["train_avatar"]
@@ -352,8 +366,15 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
     for job in fits:  # an input (a new table re-runs the fit) and the command's argument
         assert str(table) in job.split("output:")[0]
         assert f"--keypoint-offsets' '{table}'" in job
+    # the default config: studio6's right fingers are MediaPipe's (its sheet row's
+    # dominant_hand, six cameras), fitted with the shipped pretrained table's finger rows;
+    # single's (one camera) are the model's
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}")
-    assert "--keypoint-offsets" not in res.stdout
+    fits = {scene: job for job in res.stdout.split("\nrule ") if job.startswith("fit_smplx:")
+            for scene in re.findall(r"wildcards: scene=(\w+)", job)}
+    assert ("--keypoint-offsets' 'models/pretrained_keypoint_offsets.parquet'"
+            " '--keypoint-offsets-fingers' 'right'") in fits["studio6"]
+    assert "--keypoint-offsets" not in fits["single"]
     # MediaPipe's right fingers in the shipped keypoints: the pretrained table's finger rows
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}",
                     f'fit={{"keypoint_offsets": {{"pretrained": "{table}"}}}}',
@@ -489,8 +510,9 @@ def test_dry_run_of_the_footage_config_uses_the_pretrained_detectors(tmp_path):
                     str(tmp_path / "footage.yaml"), str(cfg))
     assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
     counts = job_counts(res.stdout)
-    for rule in ("fetch_models", "fetch_assets", "extract_frames", "segment", "detect_keypoints",
-                 "perception_quality", "fit_smplx", "train_avatar", "evaluate_avatar", "report"):
+    for rule in ("fetch_modnet", "fetch_mediapipe", "fetch_assets", "extract_frames", "segment",
+                 "detect_keypoints", "perception_quality", "fit_smplx", "train_avatar",
+                 "evaluate_avatar", "report"):
         assert counts.get(rule) == 1, (rule, counts)
     assert "simulate" not in counts
     seg = [line for line in res.stdout.splitlines() if " -m signsplat segment " in line][0]

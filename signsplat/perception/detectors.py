@@ -6,8 +6,8 @@ shipped segmenter with the keypoint model adapted to other rigs (``wide``:
 MediaPipe's models, fetched by ``signsplat models fetch`` into ``perception.pretrained.cache``):
 ``perception.detectors`` by the sheet row's source, or the row's own ``detectors`` column.
 The workflow asks this module for a sequence's choice, its perception section (the row's
-``signer`` column applied) and the model files its rules read; the stage commands ask it for
-the specs.
+``signer`` and ``dominant_hand`` columns applied) and the model files its rules read; the
+stage commands ask it for the specs.
 """
 
 from __future__ import annotations
@@ -70,9 +70,11 @@ def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
         from signsplat.perception.hands import HandsSpec
         from signsplat.perception.pretrained.keypointer import MediaPipeSpec
 
-        landmarker = MediaPipeSpec.from_config(cfg["pretrained"], device=device, face=False)
+        sides = tuple(k["hand_sides"])
+        landmarker = MediaPipeSpec.from_config(cfg["pretrained"], device=device, face=False,
+                                               hand_sides=sides)
         kp = HandsSpec(base=kp, hands=landmarker, min_score=k["hand_min_score"],
-                       reach=k["hand_reach"], sides=tuple(k["hand_sides"]))
+                       reach=k["hand_reach"], sides=sides)
     return seg, kp
 
 
@@ -84,12 +86,27 @@ def detectors_for(row: dict, cfg: dict) -> str:
 
 def perception_for(row: dict, cfg: dict) -> dict:
     """The perception section one sequence runs with: ``cfg`` with the row's ``signer``
-    column (largest, central or x,y,w,h) in place of ``signer.rule`` / ``signer.box``."""
+    column (largest, central or x,y,w,h) in place of ``signer.rule`` / ``signer.box``, and
+    with ``keypoints.hands: dominant`` that choice made for the row (:func:`hands_for`)."""
+    if cfg["keypoints"]["hands"] == "dominant":
+        cfg = {**cfg, "keypoints": {**cfg["keypoints"], **hands_for(row)}}
     if not row.get("signer"):
         return cfg
     from signsplat.perception.pretrained.select import parse_signer
 
     return {**cfg, "signer": {**cfg["signer"], **parse_signer(row["signer"])}}
+
+
+def hands_for(row: dict) -> dict:
+    """``keypoints.hands: dominant`` for one sheet row: MediaPipe's fingers on the row's
+    ``dominant_hand`` when the sequence has several cameras (``hands: mediapipe``,
+    ``hand_sides: [that side]``), the keypoint model's own fingers otherwise (one camera, or
+    no dominant hand given). With one camera the fit follows each view-frame's fingers, and
+    MediaPipe's are sometimes mirrored (``docs/avatar.md``)."""
+    side = row.get("dominant_hand")
+    if side and row.get("num_views", 1) > 1:
+        return {"hands": "mediapipe", "hand_sides": [side]}
+    return {"hands": "model"}
 
 
 def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
@@ -98,23 +115,27 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     keypoint models for the shipped and ``wide`` keypointers with ``keypoints.hands:
     mediapipe``)."""
     if detectors == "pretrained":
-        modnet, landmarker = _pretrained_files(cfg)
-        return {"segmenter": [modnet], "keypoints": landmarker}
+        fetched = pretrained_files(cfg)
+        return {"segmenter": list(fetched["modnet"].values()),
+                "keypoints": list(fetched["mediapipe"].values())}
     model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
-    hands = _pretrained_files(cfg)[1] if cfg["keypoints"]["hands"] == "mediapipe" else []
+    hands = (list(pretrained_files(cfg)["mediapipe"].values())
+             if cfg["keypoints"]["hands"] == "mediapipe" else [])
     return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model, *hands]}
 
 
-def _pretrained_files(cfg: dict) -> tuple[str, list[str]]:
-    """MODNet's file and MediaPipe's keypoint models' files in ``pretrained.cache`` (read from
-    the manifest, which the shipped detectors without MediaPipe's hands never need)."""
+def pretrained_files(cfg: dict) -> dict[str, dict[str, str]]:
+    """The pretrained models in ``pretrained.cache`` by the wheel they are fetched from
+    (``modnet``: MODNet; ``mediapipe``: MediaPipe's keypoint models), each as manifest name ->
+    path (read from the manifest, which the shipped detectors without MediaPipe's hands never
+    need)."""
     from signsplat.perception.pretrained.fetch import load_manifest
     from signsplat.perception.pretrained.graphs import MODELS
 
     cache = Path(cfg["pretrained"]["cache"])
     _, entries = load_manifest()
-    return (str(cache / entries["modnet"].target),
-            [str(cache / entries[m["name"]].target) for m in MODELS])
+    return {"modnet": {"modnet": str(cache / entries["modnet"].target)},
+            "mediapipe": {m["name"]: str(cache / entries[m["name"]].target) for m in MODELS}}
 
 
 def asset_files(cfg: dict) -> dict[str, str]:

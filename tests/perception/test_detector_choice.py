@@ -1,13 +1,15 @@
 """Which detectors a sequence uses: the shipped ones for synthetic scenes, the pretrained
 real-world ones for footage, a sheet row's `detectors` column over both; the model files each
-choice makes the workflow wait for (the pretrained ones are `fetch_models`' outputs)."""
+choice makes the workflow wait for (the pretrained ones are the outputs of `fetch_modnet`
+and `fetch_mediapipe`, one rule per wheel)."""
 
 from __future__ import annotations
 
 import pytest
 
 from signsplat.config import ConfigError, load_sequences, validate
-from signsplat.perception.detectors import asset_files, detector_files, detectors_for
+from signsplat.perception.detectors import (asset_files, detector_files, detectors_for,
+                                           perception_for)
 
 CFG = validate({}, "stages/perception.schema.yaml")
 
@@ -39,6 +41,43 @@ def test_unknown_detectors_value_names_the_line(tmp_path):
     with pytest.raises(ConfigError,
                        match=r"line 2.*'detectors'.*'shipped', 'wide', 'pretrained'"):
         load_sequences(_sheet(tmp_path, "sequence|source|cameras|detectors\nx|video|a.mp4|rtmw\n"))
+
+
+def test_the_dominant_hand_s_fingers_come_from_mediapipe_on_several_cameras_only(tmp_path):
+    """keypoints.hands `dominant` (the default): a multi-view row's dominant_hand takes
+    MediaPipe's fingers on that side; one camera or no dominant hand keeps the model's; the
+    fit then applies the pretrained table's finger rows of that side; `model` and `mediapipe`
+    ignore the column."""
+    from signsplat.config import REPO_ROOT
+    from signsplat.fit.keypoint_offsets import fit_offsets
+
+    six, one = (f"{REPO_ROOT}/config/scenes/{n}.yaml" for n in ("studio6", "single"))
+    seqs = load_sequences(_sheet(tmp_path, "sequence|source|spec|dominant_hand\n"
+                                 f"six_r|synthetic|{six}|right\n"
+                                 f"six_l|synthetic|{six}|left\n"
+                                 f"six|synthetic|{six}|\n"
+                                 f"one_r|synthetic|{one}|right\n"))
+    assert CFG["keypoints"]["hands"] == "dominant"
+    keypoints = {n: perception_for(row, CFG)["keypoints"] for n, row in seqs.items()}
+    got = {n: (k["hands"], k["hand_sides"] if k["hands"] == "mediapipe" else None)
+           for n, k in keypoints.items()}
+    assert got == {"six_r": ("mediapipe", ["right"]), "six_l": ("mediapipe", ["left"]),
+                   "six": ("model", None), "one_r": ("model", None)}
+    assert CFG["keypoints"]["hands"] == "dominant"  # the shared section is left as it was
+    files = {n: detector_files(perception_for(row, CFG), "shipped")["keypoints"]
+             for n, row in seqs.items()}
+    assert "models/cache/hand_landmark_full.onnx" in files["six_r"]
+    assert files["six"] == files["one_r"] == ["models/keypoints.onnx"]
+    fit = {"keypoints": "detected", "keypoint_offsets": {
+        "shipped": None, "wide": None, "pretrained": "p.parquet"}}
+    assert fit_offsets(fit, "shipped", keypoints["six_l"]) == ("p.parquet", ("left",))
+    assert fit_offsets(fit, "shipped", keypoints["one_r"]) == (None, ())
+    for hands in ("model", "mediapipe"):
+        cfg = validate({"keypoints": {"hands": hands}}, "stages/perception.schema.yaml")
+        assert perception_for(seqs["six_r"], cfg) is cfg
+    with pytest.raises(ConfigError, match=r"line 2.*'dominant_hand'.*'left', 'right'"):
+        load_sequences(_sheet(tmp_path, "sequence|source|cameras|dominant_hand\n"
+                                        "x|video|a.mp4|both\n"))
 
 
 def test_files_each_choice_reads():
@@ -81,9 +120,12 @@ def test_specs_carry_the_stage_device_and_no_defaults_of_their_own(tmp_path):
     assert kp.base.path == "models/keypoints_wide.onnx" and kp.device == "cuda:1"
     assert kp.hands.device == "cuda:1" and kp.hands.face is False
     assert kp.reach == CFG["keypoints"]["hand_reach"]
-    assert kp.sides == tuple(CFG["keypoints"]["hand_sides"])
+    assert kp.sides == kp.hands.hand_sides == tuple(CFG["keypoints"]["hand_sides"])
+    one = {**mp, "keypoints": {**mp["keypoints"], "hand_sides": ["right"]}}
+    assert detector_specs(one, "shipped")[1].hands.hand_sides == ("right",)
     _, kp = detector_specs(cfg, "pretrained", "cuda:1")
     assert kp.device == "cuda:1" and kp.track is CFG["pretrained"]["keypoints"]["track"]
+    assert kp.hand_sides == ("left", "right")  # the whole body: both hands
     assert [f.name for f in dataclasses.fields(MediaPipeSpec)
             if f.default is not dataclasses.MISSING] == []
 

@@ -144,3 +144,30 @@ def test_landmarker_hands_beat_the_models_on_synthetic_ground_truth(name):
     assert err["both"] < min(err["alone"], 2.5), err  # measured 1.8 / 6.7 and 1.8 / 2.3 px
     rest = [k for k in range(133) if k not in fingers and k not in LEFT + RIGHT]
     np.testing.assert_array_equal(both[0][0][rest], alone[0][0][rest])
+
+
+@pytest.mark.skipif(not _fetched(), reason=f"pretrained models not fetched into {CACHE} "
+                    "(make models)")
+def test_the_landmarker_looks_only_for_the_hands_on_its_sides():
+    """hand_sides [right] (what keypoints.hands `dominant` asks for a right-handed signer):
+    the landmarker runs for the right hand alone and finds it where it finds it with both."""
+    from signsplat.io.images import read_mask, read_rgb
+    from signsplat.perception.detectors import detector_specs
+    from signsplat.perception.keypoints import box_from_mask
+    from signsplat.perception.stages import open_keypointer
+
+    data = REPO_ROOT / "tests" / "perception" / "data"
+    cfg = {**MP, "pretrained": {**MP["pretrained"], "cache": str(CACHE)}}
+    image = read_rgb(data / "studio6_v01_f0030.png")
+    box = box_from_mask(read_mask(data / "studio6_v01_f0030_mask.png"))
+    found = {}
+    for sides in (["left", "right"], ["right"]):
+        one = {**cfg, "keypoints": {**cfg["keypoints"], "hand_sides": sides}}
+        _, spec = detector_specs(one, "shipped", "cpu")
+        assert spec.hands.hand_sides == tuple(sides)
+        xy, sc = open_keypointer(spec.hands, 1).detect([image], [box], [0])
+        found[len(sides)] = xy[0], sc[0]
+    both, right = found[2], found[1]
+    assert (both[1][RIGHT] > 0.3).all() and (both[1][LEFT] > 0.3).all()
+    np.testing.assert_array_equal(right[0][RIGHT], both[0][RIGHT])
+    assert (right[1][LEFT] == 0).all() and np.isnan(right[0][LEFT]).all()

@@ -75,7 +75,8 @@ def test_sheet_signer_column():
     cfg = perception_for(row, CFG)
     assert cfg["signer"]["rule"] == "box" and cfg["signer"]["box"] == [5.0, 6.0, 7.0, 8.0]
     assert CFG["signer"]["rule"] == "largest"  # the shared section is left as it was
-    assert perception_for({"sequence": "c", "source": "video"}, CFG) is CFG
+    plain = perception_for({"sequence": "c", "source": "video"}, CFG)
+    assert plain["signer"] is CFG["signer"]  # no signer column: the config's rule
     assert SignerRule.from_config(cfg["signer"]).box == (5.0, 6.0, 7.0, 8.0)
     with pytest.raises(ValueError, match="needs a box"):
         SignerRule.from_config({**CFG["signer"], "rule": "box", "box": None})

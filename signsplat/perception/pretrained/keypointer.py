@@ -100,13 +100,16 @@ class MediaPipeSpec:
     heatmap_kernel: int
     #: 'auto' (CUDA when onnxruntime has it), 'cpu' or 'cuda[:N]': the stage's --device
     device: str
+    #: the hands looked for (with ``hands``): both for the whole body; the fingers of one
+    #: side beside another keypointer (:mod:`signsplat.perception.hands`) need only that side
+    hand_sides: tuple[str, ...]
 
     @classmethod
     def from_config(cls, pretrained: dict, device: str = "auto", **override) -> MediaPipeSpec:
         """From a validated ``perception.pretrained`` section, run on ``device``
         (``override`` replaces fields)."""
         fields = {"cache": pretrained["cache"], **pretrained["keypoints"], "device": device,
-                  **override}
+                  "hand_sides": tuple(POSE_HAND_POINTS), **override}
         return cls(**fields)
 
 
@@ -361,7 +364,7 @@ class MediaPipeWholeBody:
             self.prev_hands = {}
             return None, dbg
         if s.hands:
-            for side in POSE_HAND_POINTS:
+            for side in s.hand_sides:
                 result.hands[side] = self._hand_of(image, result, side, dbg)
                 if result.hands[side] is None:
                     self.prev_hands.pop(side, None)
