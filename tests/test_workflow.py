@@ -112,6 +112,14 @@ def test_the_default_run_s_avatars_share_two_cores_after_every_fit(tmp_path):
                              "fit_smplx")
               for p in prio[rule]}
     assert min(before) > max(prio["train_avatar"]) > max(prio["colmap_compare"]), prio
+    # the two-thread fit outranks any two one-thread jobs before the avatars (Snakemake starts
+    # the ready jobs with the largest sum of priorities), so single's chain cannot delay it
+    prio_by = _jobs_by_rule(res.stdout, "priority", by_scene=True)
+    one_thread = {p for (rule, scene), ps in prio_by.items() for p in ps
+                  if (rule, scene) != ("fit_smplx", "studio6")
+                  and by_scene.get((rule, scene), {1}) == {1}}
+    assert min(prio_by[("fit_smplx", "studio6")]) > 2 * max(one_thread), prio_by
+    assert prio_by[("fit_smplx", "single")] == prio["detect_keypoints"]
     assert prio["stitch_video"] == prio["train_avatar"]
     assert max(prio["perception_eval"]) < min(prio["train_avatar"]), prio
     res = run_snakemake("--cores", "2", "-n", "-p", "quality", "--config",

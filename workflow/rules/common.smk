@@ -54,6 +54,14 @@ def _shared_cores():
 # multi-view fit never waits behind a one-thread avatar for a free core; a single-view
 # sequence's keypoints and fit (one thread, chain_threads) run beside an avatar.
 BEFORE_AVATAR, AVATAR = 2, 1
+# Snakemake starts the ready jobs whose priorities add up to the most (any of them on a tie),
+# so a fit on several cores outranks any two one-core jobs before the avatars: the multi-view
+# fit does not wait behind a single-view sequence's keypoints, fit and perception scores.
+MULTICORE_FIT = 2 * BEFORE_AVATAR + 1
+
+
+def fit_priority(wildcards):
+    return MULTICORE_FIT if chain_threads(wildcards) > 1 else BEFORE_AVATAR
 
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)
 SCENES = PLAN.scenes  # synthetic sequences: name -> validated scene spec

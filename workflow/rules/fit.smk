@@ -93,7 +93,7 @@ rule fit_smplx:
         f"{RESULTS}/_logs/{{scene}}/fit_smplx.log",
     benchmark:
         f"{RESULTS}/_benchmarks/{{scene}}/fit_smplx.tsv"
-    priority: BEFORE_AVATAR
+    priority: fit_priority
     threads: chain_threads
     resources:
         mem_mb=4000,
