@@ -63,6 +63,7 @@ MULTICORE_FIT = 2 * BEFORE_AVATAR + 1
 def fit_priority(wildcards):
     return MULTICORE_FIT if chain_threads(wildcards) > 1 else BEFORE_AVATAR
 
+
 SEQUENCES = PLAN.sequences  # name -> sheet row (synthetic rows carry their scene spec)
 SCENES = PLAN.scenes  # synthetic sequences: name -> validated scene spec
 VIDEOS = PLAN.videos  # footage: name -> sheet row
