@@ -36,6 +36,18 @@ def job_counts(stdout: str) -> dict[str, int]:
     return counts
 
 
+def planned_jobs(stdout: str, rule: str) -> list[str]:
+    """What a dry run with -p prints for each planned job of ``rule`` (input, output,
+    wildcards, command)."""
+    return [job for job in stdout.split("\nrule ") if job.startswith(f"{rule}:")]
+
+
+def jobs_by_scene(stdout: str, rule: str) -> dict[str, str]:
+    """:func:`planned_jobs` of ``rule`` by their ``scene`` wildcard."""
+    return {re.search(r"wildcards: .*\bscene=(\w+)", job).group(1): job
+            for job in planned_jobs(stdout, rule)}
+
+
 def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     cache = tmp_path / "c"  # an empty model cache: only MediaPipe's hand models are fetched
     over = tmp_path / "over.yaml"
@@ -53,9 +65,7 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
                       "stitch_video": 1, "report": 1, "all": 1, "fetch_mediapipe": 1,
                       "total": 21,
                       **{rule: 2 for rule in per_sequence}}
-    detect = {scene: job for job in res.stdout.split("\nrule ")
-              if job.startswith("detect_keypoints:")
-              for scene in re.findall(r"wildcards: scene=(\w+)", job)}
+    detect = jobs_by_scene(res.stdout, "detect_keypoints")
     assert sorted(detect) == ["single", "studio6"]
     assert all("--detectors shipped" in job for job in detect.values())
     assert f"{cache}/hand_landmark_full.onnx" in detect["studio6"].split("output:")[0]
@@ -248,8 +258,7 @@ def tiny_study_config(tmp_path, **extra) -> Path:
 
 def planned_variants(stdout: str, rule: str) -> set[str]:
     """The `variant` wildcard of every planned job of a rule in a dry run."""
-    jobs = stdout.split("\nrule ")
-    return {m.group(1) for j in jobs if j.startswith(f"{rule}:")
+    return {m.group(1) for j in planned_jobs(stdout, rule)
             for m in [re.search(r"wildcards: .*variant=([A-Za-z0-9_]+)", j)] if m}
 
 
@@ -332,7 +341,7 @@ def test_dry_run_of_the_fit_sweep_plans_one_fit_per_changed_setting(tmp_path):
     axes = validate({}, "config.schema.yaml")["fit_sweep"]
     centre = axis_values(validate({}, "stages/fit.schema.yaml"))
     expected = {point_name(a, v) for a in AXES for v in axes[a] if v != centre[a]}
-    jobs = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_sweep_point:")]
+    jobs = planned_jobs(res.stdout, "fit_sweep_point")
     planned = {re.search(r"point=([A-Za-z0-9_]+)", j).group(1): j for j in jobs}
     assert set(planned) == expected and len(expected) >= 4
     counts = job_counts(res.stdout)
@@ -369,7 +378,7 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}",
                     f'fit={{"keypoint_offsets": {{"shipped": "{table}"}}}}')
     assert res.returncode == 0, res.stderr + res.stdout
-    fits = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_smplx:")]
+    fits = planned_jobs(res.stdout, "fit_smplx")
     assert len(fits) == 2
     for job in fits:  # an input (a new table re-runs the fit) and the command's argument
         assert str(table) in job.split("output:")[0]
@@ -378,8 +387,7 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
     # dominant_hand, six cameras), fitted with the shipped pretrained table's finger rows;
     # single's (one camera) are the model's
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}")
-    fits = {scene: job for job in res.stdout.split("\nrule ") if job.startswith("fit_smplx:")
-            for scene in re.findall(r"wildcards: scene=(\w+)", job)}
+    fits = jobs_by_scene(res.stdout, "fit_smplx")
     assert ("--keypoint-offsets' 'models/pretrained_keypoint_offsets.parquet'"
             " '--keypoint-offsets-fingers' 'right'") in fits["studio6"]
     assert "--keypoint-offsets" not in fits["single"]
@@ -388,7 +396,7 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
                     f'fit={{"keypoint_offsets": {{"pretrained": "{table}"}}}}',
                     'perception={"keypoints": {"hands": "mediapipe", "hand_sides": ["right"]}}')
     assert res.returncode == 0, res.stderr + res.stdout
-    fits = [j for j in res.stdout.split("\nrule ") if j.startswith("fit_smplx:")]
+    fits = planned_jobs(res.stdout, "fit_smplx")
     assert len(fits) == 2
     for job in fits:
         assert f"--keypoint-offsets' '{table}' '--keypoint-offsets-fingers' 'right'" in job
