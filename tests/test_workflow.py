@@ -68,11 +68,17 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     detect = jobs_by_scene(res.stdout, "detect_keypoints")
     assert sorted(detect) == ["single", "studio6"]
     assert all("--detectors shipped" in job for job in detect.values())
+    # the landmarker in the model's hand crops: its hand model alone, no pose chain
     assert f"{cache}/hand_landmark_full.onnx" in detect["studio6"].split("output:")[0]
+    assert "pose_landmark_full.onnx" not in detect["studio6"]
     assert "hand_landmark_full.onnx" not in detect["single"]
     assert '"hands": "mediapipe", "input_size"' in detect["studio6"]
     assert '"hand_sides": ["right"]' in detect["studio6"]
     assert '"hands": "model"' in detect["single"]
+    # the masks do not depend on the keypoints' settings (the dominant hand's among them)
+    segment = jobs_by_scene(res.stdout, "segment")
+    assert segment and not any('"hand_sides"' in job or '"wide_model"' in job
+                               for job in segment.values())
     # every output of the plan is under the results folder the command line gave
     outputs = re.findall(r"^    output: (.+)$", res.stdout, re.M)
     assert outputs and all(o.startswith(str(tmp_path)) for line in outputs

@@ -106,6 +106,14 @@ TABLES: dict[str, Table] = {
                 "score": "float32 confidence in [0, 1]; ground truth uses visibility",
             },
             extra_columns=True,  # ground truth adds 'visible' (bool) and 'depth' (float32 m)
+            metadata={
+                "model": "the detected keypoints' model file(s)",
+                "source": "their keypointer: 'onnx' (a SimCC model), 'mediapipe' (the "
+                "pretrained keypointer) or 'onnx+mediapipe' (a SimCC model with MediaPipe's "
+                "fingers)",
+                "note": "what the keypointer reports of its run (how many frames took "
+                "MediaPipe's fingers, frames left without keypoints), or empty",
+            },
         ),
         Table(
             "gloss_library",
@@ -198,10 +206,11 @@ def read_table(path: str | os.PathLike, table: str) -> pd.DataFrame:
     return df
 
 
-def table_metadata(arrow: pa.Table) -> dict:
-    """The metadata :func:`write_table` stored in an Arrow table read from its file ({} when
-    none)."""
-    return json.loads((arrow.schema.metadata or {}).get(b"signsplat.meta", b"{}"))
+def table_metadata(arrow: pa.Table | pa.Schema) -> dict:
+    """The metadata :func:`write_table` stored in an Arrow table read from its file, or in
+    its schema alone (``pyarrow.parquet.read_schema``); {} when none."""
+    schema = arrow if isinstance(arrow, pa.Schema) else arrow.schema
+    return json.loads((schema.metadata or {}).get(b"signsplat.meta", b"{}"))
 
 
 def read_columns(path: str | os.PathLike, columns: list[str]) -> pd.DataFrame:

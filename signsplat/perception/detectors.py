@@ -74,7 +74,7 @@ def detector_specs(cfg: dict, detectors: str, device: str = "auto"):
         landmarker = MediaPipeSpec.from_config(cfg["pretrained"], device=device, face=False,
                                                hand_sides=sides)
         kp = HandsSpec(base=kp, hands=landmarker, min_score=k["hand_min_score"],
-                       reach=k["hand_reach"], sides=sides)
+                       reach=k["hand_reach"], sides=sides, crop=k["hand_crop"])
     return seg, kp
 
 
@@ -97,6 +97,18 @@ def perception_for(row: dict, cfg: dict) -> dict:
     return {**cfg, "signer": {**cfg["signer"], **parse_signer(row["signer"])}}
 
 
+#: what the segment stage reads of a perception section (the keypoint model's settings, the
+#: evaluation's and the training's do not change its masks)
+SEGMENT_KEYS = ("skip_bad_frames", "segmenter", "pretrained", "signer")
+
+
+def segment_section(cfg: dict) -> dict:
+    """The part of a perception section the segment stage reads (:data:`SEGMENT_KEYS`): its
+    workflow parameters, so that a keypoint setting (or a sheet's ``dominant_hand``) does not
+    make the masks again."""
+    return {k: cfg[k] for k in SEGMENT_KEYS}
+
+
 def hands_for(row: dict) -> dict:
     """``keypoints.hands: dominant`` for one sheet row: MediaPipe's fingers on the row's
     ``dominant_hand`` when the sequence has several cameras (``hands: mediapipe``,
@@ -113,14 +125,20 @@ def detector_files(cfg: dict, detectors: str) -> dict[str, list[str]]:
     """The model files each stage reads for ``detectors`` (workflow inputs): the configured
     ONNX files, or the pretrained ones in ``perception.pretrained.cache`` (also MediaPipe's
     keypoint models for the shipped and ``wide`` keypointers with ``keypoints.hands:
-    mediapipe``)."""
+    mediapipe``: its hand landmark model alone with ``hand_crop: model``)."""
     if detectors == "pretrained":
         fetched = pretrained_files(cfg)
         return {"segmenter": list(fetched["modnet"].values()),
                 "keypoints": list(fetched["mediapipe"].values())}
-    model = cfg["keypoints"]["wide_model" if detectors == "wide" else "model"]
-    hands = (list(pretrained_files(cfg)["mediapipe"].values())
-             if cfg["keypoints"]["hands"] == "mediapipe" else [])
+    k = cfg["keypoints"]
+    model = k["wide_model" if detectors == "wide" else "model"]
+    hands = []
+    if k["hands"] == "mediapipe":
+        from signsplat.perception.pretrained.graphs import HAND_LMK
+
+        landmarker = pretrained_files(cfg)["mediapipe"]
+        hands = ([landmarker[HAND_LMK["name"]]] if k["hand_crop"] == "model"
+                 else list(landmarker.values()))
     return {"segmenter": [cfg["segmenter"]["model"]], "keypoints": [model, *hands]}
 
 

@@ -10,6 +10,11 @@ on the same frames as the keypoint model. Per frame and side (of the configured
   of the model's wrist of the same side, whose score is at least ``min_score``: the two then
   agree on which hand is which, and on where the arm ends.
 
+Where the landmarker looks (``hand_crop``): with ``model`` (the default), in the crop MediaPipe's
+hand tracking takes around a hand's last 21 points, here the keypoint model's own points of
+that hand in the same frame (:func:`hands_in_model_crops`; the hand model alone); with
+``pose``, where MediaPipe's pose model puts the hand (the pretrained keypointer's own chain).
+
 The hand's root point (the wrist) stays the model's: it is the end of the arm the model
 detects with the body. So do the scores, which the fit uses as weights
 (``fit.confidence_power``): the landmarker's scores would weigh the hands more than the fit's
@@ -27,6 +32,10 @@ from signsplat.body.joints import KP_LEFT_HAND, KP_RIGHT_HAND, NUM_KEYPOINTS
 
 # COCO-WholeBody: per side the body's wrist and the hand's 21 points (root first)
 SIDES = {"left": (9, KP_LEFT_HAND), "right": (10, KP_RIGHT_HAND)}
+HAND_CROPS = ("model", "pose")
+#: a hand whose points span fewer pixels (its crop's longer side, before MediaPipe's 2x) gives
+#: the landmarker nothing to see, and a crop of no size cannot be made
+MIN_HAND_PX = 4.0
 
 
 def take_hands(xy: np.ndarray, sc: np.ndarray, hand_xy: np.ndarray, hand_sc: np.ndarray,
@@ -61,6 +70,34 @@ def take_hands(xy: np.ndarray, sc: np.ndarray, hand_xy: np.ndarray, hand_sc: np.
     return xy, sc, taken
 
 
+def hands_in_model_crops(landmarker, images: list, xy: np.ndarray, sc: np.ndarray,
+                         sides: tuple[str, ...], min_score: float, min_presence: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """The hand landmarker's points per frame and side of ``sides`` in the crop around the
+    keypoint model's own 21 points of that hand (``xy`` (N, 133, 2), scores ``sc`` (N, 133)):
+    MediaPipe's tracking crop (``landmarker.tracked_hand``), run where those points are
+    finite, span at least :data:`MIN_HAND_PX` and score ``min_score`` on average. Returns
+    (N, 133, 2) points (NaN where no hand was found) and (N, 133) scores (the hand's presence
+    on its 21 points where it is at least ``min_presence``, else 0), as :func:`take_hands`
+    reads the landmarker's."""
+    n = len(images)
+    hand_xy = np.full((n, NUM_KEYPOINTS, 2), np.nan, np.float32)
+    hand_sc = np.zeros((n, NUM_KEYPOINTS), np.float32)
+    for side in sides:
+        hand = list(SIDES[side][1])
+        for i, image in enumerate(images):
+            pts = np.asarray(xy[i, hand], np.float64)
+            if not np.isfinite(pts).all() or not np.nanmean(sc[i, hand]) >= min_score:
+                continue
+            if float(np.ptp(pts, axis=0).max()) < MIN_HAND_PX:
+                continue
+            found, _ = landmarker.tracked_hand(image, pts)
+            if found.presence >= min_presence and np.isfinite(found.points).all():
+                hand_xy[i, hand] = found.points
+                hand_sc[i, hand] = found.presence
+    return hand_xy, hand_sc
+
+
 @dataclass(frozen=True)
 class HandsSpec:
     """A keypoint model (``base``, a :class:`~signsplat.perception.contracts.KeypointSpec`)
@@ -72,6 +109,8 @@ class HandsSpec:
     min_score: float
     reach: float
     sides: tuple[str, ...]
+    #: one of :data:`HAND_CROPS`: where the landmarker looks for a hand
+    crop: str
 
     @property
     def device(self) -> str:
@@ -79,22 +118,39 @@ class HandsSpec:
 
 
 class HandsKeypointer:
-    """Two keypointers on the same frames, their results merged by :func:`take_hands`."""
+    """Two keypointers on the same frames, their results merged by :func:`take_hands`: the
+    keypoint model ``base`` and MediaPipe's hand landmarker, opened here for ``spec.crop``
+    (the hand model alone for ``model``, the pretrained keypointer's chain for ``pose``)."""
 
     source = "onnx+mediapipe"
     num_keypoints = NUM_KEYPOINTS
 
-    def __init__(self, base, hands, spec: HandsSpec):
-        self.base, self.hands, self.spec = base, hands, spec
+    def __init__(self, base, spec: HandsSpec, threads: int = 1):
+        from signsplat.perception.pretrained.graphs import HAND_LMK
+        from signsplat.perception.pretrained.keypointer import (
+            MediaPipeKeypointer,
+            MediaPipeWholeBody,
+        )
+
+        if spec.crop not in HAND_CROPS:
+            raise ValueError(f"unknown hand crop {spec.crop!r}; known: {list(HAND_CROPS)}")
+        self.base, self.spec = base, spec
+        self.hands = (MediaPipeWholeBody(spec.hands, threads, models=(HAND_LMK,))
+                      if spec.crop == "model" else MediaPipeKeypointer(spec.hands, threads))
         self.batch_size, self.min_area = base.batch_size, base.min_area
-        self.path = f"{base.path} + {hands.path}"
+        self.path = f"{base.path} + {spec.hands.cache}"
         self.taken = {side: 0 for side in spec.sides}
         self.frames = 0
 
     def detect(self, images: list, boxes: list, views: list[int], persons=None):
         """The base's keypoints with the hand landmarker's hands (:func:`take_hands`)."""
         xy, sc = self.base.detect(images, boxes, views, persons)
-        hand_xy, hand_sc = self.hands.detect(images, boxes, views, persons)
+        if self.spec.crop == "model":
+            hand_xy, hand_sc = hands_in_model_crops(
+                self.hands, images, xy, sc, self.spec.sides, self.spec.min_score,
+                self.spec.hands.min_hand_presence)
+        else:
+            hand_xy, hand_sc = self.hands.detect(images, boxes, views, persons)
         xy, sc, taken = take_hands(xy, sc, hand_xy, hand_sc, boxes, self.spec.min_score,
                                    self.spec.reach, self.spec.sides)
         for side, k in taken.items():
@@ -104,8 +160,8 @@ class HandsKeypointer:
 
     def summary(self) -> str:
         """How many frames took the landmarker's hands, for the stage's log."""
-        return "MediaPipe's hands taken in " + ", ".join(
-            f"{n} of {self.frames} frames ({side})" for side, n in self.taken.items())
+        return (f"MediaPipe's hands (crop: {self.spec.crop}) taken in " + ", ".join(
+            f"{n} of {self.frames} frames ({side})" for side, n in self.taken.items()))
 
     def finish(self, frames, xy, sc):
         """One view's keypoints after its last frame: the base's own finishing."""

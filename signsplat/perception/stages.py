@@ -212,8 +212,7 @@ def open_keypointer(spec, threads: int = 1, min_area: int | None = None):
     from signsplat.perception.hands import HandsKeypointer, HandsSpec
 
     if isinstance(spec, HandsSpec):
-        kp = HandsKeypointer(open_keypointer(spec.base, threads),
-                             open_keypointer(spec.hands, threads), spec)
+        kp = HandsKeypointer(open_keypointer(spec.base, threads), spec, threads)
     elif isinstance(spec, KeypointSpec):
         kp = SimccKeypointer(spec, threads)
     else:
@@ -288,7 +287,8 @@ def detect_sequence(frames_path: str | os.PathLike, masks_path: str | os.PathLik
         print(f"keypoints: {note}", file=sys.stderr)
     t0 = time.perf_counter()
     df = keypoints_frame(keys, xys, scs, k)
-    write_table(df, out_path, "keypoints", metadata={"model": kp.path, "source": kp.source})
+    write_table(df, out_path, "keypoints",
+                metadata={"model": kp.path, "source": kp.source, "note": note})
     t["write"] += time.perf_counter() - t0
     t["total"] = time.perf_counter() - t_start
     report = StageReport(df, bad, t, len(keys))

@@ -55,6 +55,7 @@ class SceneTables:
     footage_quality: pd.DataFrame | None = None  # footage: detection rates, jitter
     footage_overlays: list[Path] = field(default_factory=list)  # mask + keypoints on frames
     persons: pd.DataFrame | None = None  # who the person detector saw, who was taken
+    keypointer: dict = field(default_factory=dict)  # the detected keypoints' metadata
 
 
 @dataclass
@@ -131,6 +132,8 @@ def collect_scene(scene_dir: Path, repo_scenes: Path | None = None,
         if kp.is_file():
             t.keypoints_2d = kp
             break
+    if (perc / "keypoints.parquet").is_file():
+        t.keypointer = table_metadata(pq.read_schema(perc / "keypoints.parquet"))
     t.footage_quality = read_parquet(perc / "quality.parquet")
     t.footage_overlays = _pngs(perc / "overlays", max_images)
     t.persons = read_parquet(perc / "persons.parquet")

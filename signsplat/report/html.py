@@ -130,6 +130,12 @@ def perception_section(res: Results) -> Section:
     sec = Section("perception", "2. Perception accuracy and speed",
                   "Mask IoU, PCK@0.05 and pixel error against the simulator's ground truth; "
                   "frames per second of each stage.")
+    keypointers = [{"sequence": name, "keypointer": t.keypointer.get("source", ""),
+                    "model": t.keypointer.get("model", ""), "note": t.keypointer.get("note", "")}
+                   for name, t in res.scenes.items() if t.keypointer]
+    if keypointers:
+        sec.add_table("Keypoints: which keypointer and model, and what it reported",
+                      pd.DataFrame(keypointers))
     for name, t in res.scenes.items():
         if t.perception_eval is not None:
             pivot = t.perception_eval.pivot_table(index="part", columns="metric",

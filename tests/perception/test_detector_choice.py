@@ -9,7 +9,7 @@ import pytest
 
 from signsplat.config import ConfigError, load_sequences, validate
 from signsplat.perception.detectors import (asset_files, detector_files, detectors_for,
-                                           perception_for)
+                                           perception_for, segment_section)
 
 CFG = validate({}, "stages/perception.schema.yaml")
 
@@ -80,6 +80,23 @@ def test_the_dominant_hand_s_fingers_come_from_mediapipe_on_several_cameras_only
                                         "x|video|a.mp4|both\n"))
 
 
+def test_the_segment_stage_s_section_leaves_the_keypoints_out():
+    """The segment stage's parameters: a keypoint setting or a sheet's dominant hand leaves
+    them (and so the masks) as they are; the segmenter's and the signer's settings do not.
+    The section alone is a whole perception section once validated (the command fills in
+    the rest from the schema)."""
+    seg = segment_section(CFG)
+    assert "keypoints" not in seg and "eval" not in seg
+    six_right = {"dominant_hand": "right", "num_views": 6}
+    assert perception_for(six_right, CFG)["keypoints"] != CFG["keypoints"]
+    assert segment_section(perception_for(six_right, CFG)) == seg
+    assert segment_section({**CFG, "keypoints": {**CFG["keypoints"], "batch_size": 3}}) == seg
+    assert segment_section(perception_for({"signer": "central"}, CFG)) != seg
+    threshold = {**CFG, "segmenter": {**CFG["segmenter"], "threshold": 0.1}}
+    assert segment_section(threshold) != seg
+    assert validate(seg, "stages/perception.schema.yaml") == CFG
+
+
 def test_files_each_choice_reads():
     landmarker = [f"models/cache/{name}.onnx" for name in (
         "pose_detection", "pose_landmark_full", "hand_recrop", "hand_landmark_full",
@@ -88,10 +105,14 @@ def test_files_each_choice_reads():
                                               "keypoints": ["models/keypoints.onnx"]}
     assert detector_files(CFG, "wide") == {"segmenter": ["models/segmenter.onnx"],
                                            "keypoints": ["models/keypoints_wide.onnx"]}
-    # with MediaPipe's hands the shipped and wide keypointers read its models too
+    # with MediaPipe's hands the shipped and wide keypointers read its hand model too (in the
+    # model's crops, the default), or the models its pose chain runs (in the pose's crops)
     mp = {**CFG, "keypoints": {**CFG["keypoints"], "hands": "mediapipe"}}
-    assert detector_files(mp, "shipped")["keypoints"] == ["models/keypoints.onnx", *landmarker]
-    assert detector_files(mp, "wide")["keypoints"] == ["models/keypoints_wide.onnx", *landmarker]
+    hand = ["models/cache/hand_landmark_full.onnx"]
+    assert detector_files(mp, "shipped")["keypoints"] == ["models/keypoints.onnx", *hand]
+    assert detector_files(mp, "wide")["keypoints"] == ["models/keypoints_wide.onnx", *hand]
+    pose = {**mp, "keypoints": {**mp["keypoints"], "hand_crop": "pose"}}
+    assert detector_files(pose, "shipped")["keypoints"] == ["models/keypoints.onnx", *landmarker]
     pre = detector_files(CFG, "pretrained")
     assert pre["segmenter"] == ["models/cache/modnet.onnx"]
     assert pre["keypoints"] == landmarker

@@ -15,7 +15,7 @@ from signsplat.report import plots, runs
 from signsplat.report.collect import collect, read_benchmarks
 from signsplat.report.html import closeups, write_report
 
-from .conftest import build_results
+from .conftest import build_results, keypoints_table
 
 
 def test_pareto_front_matches_brute_force_definition():
@@ -337,3 +337,27 @@ def test_fit_table_says_when_the_fit_took_the_detector_s_own_keypoints(tmp_path)
                 metadata={"legs_held": "left, right"})
     held = fit_section(collect(root), Assets(tmp_path / "c"))
     assert "legs no view sees (left, right) kept at the rest pose" in held.tables[0][0]
+
+
+def test_perception_section_names_each_sequence_s_keypointer_and_what_it_reported(tmp_path):
+    """The detected keypoints' metadata (signsplat.perception.stages.detect_sequence): the
+    report's perception section says which keypointer and model each sequence took, and the
+    keypointer's note (here: how many frames took MediaPipe's fingers); a run whose keypoints
+    carry no metadata shows no such table."""
+    from signsplat.io.tables import write_table
+    from signsplat.report.html import perception_section
+
+    root = build_results(tmp_path / "r")
+    plain = perception_section(collect(root))
+    assert not any("which keypointer" in title for title, _ in plain.frames)
+    note = "MediaPipe's hands (crop: model) taken in 5 of 8 frames (right)"
+    write_table(keypoints_table("tiny").drop(columns=["visible", "depth"]),
+                root / "tiny" / "perception" / "keypoints.parquet", "keypoints",
+                metadata={"model": "models/keypoints.onnx + models/cache", "note": note,
+                          "source": "onnx+mediapipe"})
+    sec = perception_section(collect(root))
+    title, table = sec.frames[0]
+    assert "which keypointer" in title and "taken in 5 of 8 frames" in sec.tables[0][1]
+    assert table.to_dict("records") == [{
+        "sequence": "tiny", "keypointer": "onnx+mediapipe",
+        "model": "models/keypoints.onnx + models/cache", "note": note}]

@@ -9,7 +9,7 @@
 # models/README.md is their model card).
 from signsplat.config import validate as _validate
 from signsplat.perception.detectors import (asset_files, detector_files, detectors_for,
-                                           perception_for, pretrained_files)
+                                           perception_for, pretrained_files, segment_section)
 
 PERCEPTION = _validate(
     dict(config.get("perception", {})), "stages/perception.schema.yaml", "config: perception"
@@ -99,7 +99,7 @@ rule segment:
         masked_frames=f"{RESULTS}/{{scene}}/perception/masked_frames.parquet",
         timings=f"{RESULTS}/{{scene}}/perception/segment_timings.parquet",
     params:
-        cfg=perception_json,
+        cfg=lambda w: as_json(segment_section(sequence_perception(w))),
         out=lambda w: perception_dir(w.scene),
         detectors=detectors,
     log:

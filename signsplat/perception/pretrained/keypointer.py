@@ -180,13 +180,14 @@ class MediaPipeWholeBody:
     """Whole-body keypoints of one person per frame from MediaPipe's ONNX models in ``cache``.
 
     Call :meth:`detect` per frame in time order; :meth:`reset` forgets the tracked ROI (a new
-    view or sequence).
+    view or sequence). ``models`` are the models opened (all of :data:`MODELS` for the whole
+    body; the hand landmark model alone serves :meth:`tracked_hand`).
     """
 
-    def __init__(self, spec: MediaPipeSpec, threads: int = 1):
+    def __init__(self, spec: MediaPipeSpec, threads: int = 1, models: tuple = MODELS):
         self.spec = spec
         self.sessions = {m["name"]: _session(spec.cache, m["name"], m["size"], threads,
-                                             spec.device) for m in MODELS}
+                                             spec.device) for m in models}
         self.anchors = {m["name"]: mp.ssd_anchors(m["size"], m["strides"])
                         for m in (POSE_DET, PALM_DET, FACE_DET)}
         self.prev_roi: mp.Roi | None = None
