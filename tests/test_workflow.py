@@ -58,7 +58,7 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     counts = job_counts(res.stdout)
     # the sheet's two synthetic sequences (studio6: 6 cameras, single: 1): one chain each,
     # COLMAP only for the multi-view one, one stitching job for all sentences, one report;
-    # the models once, for studio6's right-hand fingers (its sheet row's dominant_hand)
+    # MediaPipe's models once, for both sequences' right-hand fingers (their dominant_hand)
     per_sequence = ("simulate", "segment", "detect_keypoints", "perception_eval", "fit_smplx",
                     "train_avatar", "evaluate_avatar")
     assert counts == {"body_model": 1, "gloss_library": 1, "colmap_compare": 1,
@@ -68,13 +68,13 @@ def test_dry_run_lists_the_jobs_of_the_default_config(tmp_path):
     detect = jobs_by_scene(res.stdout, "detect_keypoints")
     assert sorted(detect) == ["single", "studio6"]
     assert all("--detectors shipped" in job for job in detect.values())
-    # the landmarker in the model's hand crops: its hand model alone, no pose chain
-    assert f"{cache}/hand_landmark_full.onnx" in detect["studio6"].split("output:")[0]
-    assert "pose_landmark_full.onnx" not in detect["studio6"]
-    assert "hand_landmark_full.onnx" not in detect["single"]
-    assert '"hands": "mediapipe", "input_size"' in detect["studio6"]
-    assert '"hand_sides": ["right"]' in detect["studio6"]
-    assert '"hands": "model"' in detect["single"]
+    # both sheet rows name the right hand: the landmarker in the model's hand crops, its hand
+    # model alone (no pose chain)
+    for scene in ("studio6", "single"):
+        assert f"{cache}/hand_landmark_full.onnx" in detect[scene].split("output:")[0]
+        assert "pose_landmark_full.onnx" not in detect[scene]
+        assert '"hands": "mediapipe", "input_size"' in detect[scene]
+        assert '"hand_sides": ["right"]' in detect[scene]
     # the masks do not depend on the keypoints' settings (the dominant hand's among them)
     segment = jobs_by_scene(res.stdout, "segment")
     assert segment and not any('"hand_sides"' in job or '"wide_model"' in job
@@ -389,14 +389,13 @@ def test_the_fit_gets_the_keypoint_offsets_of_its_sequence_s_detectors(tmp_path)
     for job in fits:  # an input (a new table re-runs the fit) and the command's argument
         assert str(table) in job.split("output:")[0]
         assert f"--keypoint-offsets' '{table}'" in job
-    # the default config: studio6's right fingers are MediaPipe's (its sheet row's
-    # dominant_hand, six cameras), fitted with the shipped pretrained table's finger rows;
-    # single's (one camera) are the model's
+    # the default config: both sequences' right fingers are MediaPipe's (their sheet rows'
+    # dominant_hand), fitted with the shipped pretrained table's finger rows
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}")
     fits = jobs_by_scene(res.stdout, "fit_smplx")
-    assert ("--keypoint-offsets' 'models/pretrained_keypoint_offsets.parquet'"
-            " '--keypoint-offsets-fingers' 'right'") in fits["studio6"]
-    assert "--keypoint-offsets" not in fits["single"]
+    for scene in ("studio6", "single"):
+        assert ("--keypoint-offsets' 'models/pretrained_keypoint_offsets.parquet'"
+                " '--keypoint-offsets-fingers' 'right'") in fits[scene]
     # MediaPipe's right fingers in the shipped keypoints: the pretrained table's finger rows
     res = snakemake("-n", "-p", "--config", f"results={tmp_path}",
                     f'fit={{"keypoint_offsets": {{"pretrained": "{table}"}}}}',

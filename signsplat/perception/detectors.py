@@ -89,7 +89,8 @@ def perception_for(row: dict, cfg: dict) -> dict:
     column (largest, central or x,y,w,h) in place of ``signer.rule`` / ``signer.box``, and
     with ``keypoints.hands: dominant`` that choice made for the row (:func:`hands_for`)."""
     if cfg["keypoints"]["hands"] == "dominant":
-        cfg = {**cfg, "keypoints": {**cfg["keypoints"], **hands_for(row)}}
+        k = cfg["keypoints"]
+        cfg = {**cfg, "keypoints": {**k, **hands_for(row, k["hand_crop"])}}
     if not row.get("signer"):
         return cfg
     from signsplat.perception.pretrained.select import parse_signer
@@ -109,14 +110,14 @@ def segment_section(cfg: dict) -> dict:
     return {k: cfg[k] for k in SEGMENT_KEYS}
 
 
-def hands_for(row: dict) -> dict:
+def hands_for(row: dict, crop: str) -> dict:
     """``keypoints.hands: dominant`` for one sheet row: MediaPipe's fingers on the row's
-    ``dominant_hand`` when the sequence has several cameras (``hands: mediapipe``,
-    ``hand_sides: [that side]``), the keypoint model's own fingers otherwise (one camera, or
-    no dominant hand given). With one camera the fit follows each view-frame's fingers, and
-    MediaPipe's are sometimes mirrored (``docs/avatar.md``)."""
+    ``dominant_hand`` (``hands: mediapipe``, ``hand_sides: [that side]``), the keypoint
+    model's own fingers where no dominant hand is given. With ``crop`` (``hand_crop``) `pose`
+    only on sequences with several cameras: in the pose's crops MediaPipe's hand is often
+    mirrored, which one camera cannot outvote (``docs/avatar.md``)."""
     side = row.get("dominant_hand")
-    if side and row.get("num_views", 1) > 1:
+    if side and (crop == "model" or row.get("num_views", 1) > 1):
         return {"hands": "mediapipe", "hand_sides": [side]}
     return {"hands": "model"}
 

@@ -43,10 +43,11 @@ def test_unknown_detectors_value_names_the_line(tmp_path):
         load_sequences(_sheet(tmp_path, "sequence|source|cameras|detectors\nx|video|a.mp4|rtmw\n"))
 
 
-def test_the_dominant_hand_s_fingers_come_from_mediapipe_on_several_cameras_only(tmp_path):
-    """keypoints.hands `dominant` (the default): a multi-view row's dominant_hand takes
-    MediaPipe's fingers on that side; one camera or no dominant hand keeps the model's; the
-    fit then applies the pretrained table's finger rows of that side; `model` and `mediapipe`
+def test_the_dominant_hand_s_fingers_come_from_mediapipe(tmp_path):
+    """keypoints.hands `dominant` (the default): a row's dominant_hand takes MediaPipe's
+    fingers on that side, on one camera too with the model's hand crops (the default); with
+    the pose's crops only on several cameras; no dominant hand keeps the model's; the fit
+    then applies the pretrained table's finger rows of that side; `model` and `mediapipe`
     ignore the column."""
     from signsplat.config import REPO_ROOT
     from signsplat.fit.keypoint_offsets import fit_offsets
@@ -57,21 +58,33 @@ def test_the_dominant_hand_s_fingers_come_from_mediapipe_on_several_cameras_only
                                  f"six_l|synthetic|{six}|left\n"
                                  f"six|synthetic|{six}|\n"
                                  f"one_r|synthetic|{one}|right\n"))
-    assert CFG["keypoints"]["hands"] == "dominant"
-    keypoints = {n: perception_for(row, CFG)["keypoints"] for n, row in seqs.items()}
-    got = {n: (k["hands"], k["hand_sides"] if k["hands"] == "mediapipe" else None)
-           for n, k in keypoints.items()}
-    assert got == {"six_r": ("mediapipe", ["right"]), "six_l": ("mediapipe", ["left"]),
-                   "six": ("model", None), "one_r": ("model", None)}
+    assert CFG["keypoints"]["hands"] == "dominant" and CFG["keypoints"]["hand_crop"] == "model"
+    pose = {**CFG, "keypoints": {**CFG["keypoints"], "hand_crop": "pose"}}
+    got = {}
+    for crop, cfg in (("model", CFG), ("pose", pose)):
+        for n, row in seqs.items():
+            k = perception_for(row, cfg)["keypoints"]
+            got[crop, n] = (k["hands"], k["hand_sides"] if k["hands"] == "mediapipe" else None)
+    assert got == {("model", "six_r"): ("mediapipe", ["right"]),
+                   ("model", "six_l"): ("mediapipe", ["left"]),
+                   ("model", "six"): ("model", None),
+                   ("model", "one_r"): ("mediapipe", ["right"]),
+                   ("pose", "six_r"): ("mediapipe", ["right"]),
+                   ("pose", "six_l"): ("mediapipe", ["left"]),
+                   ("pose", "six"): ("model", None),
+                   ("pose", "one_r"): ("model", None)}
     assert CFG["keypoints"]["hands"] == "dominant"  # the shared section is left as it was
     files = {n: detector_files(perception_for(row, CFG), "shipped")["keypoints"]
              for n, row in seqs.items()}
     assert "models/cache/hand_landmark_full.onnx" in files["six_r"]
-    assert files["six"] == files["one_r"] == ["models/keypoints.onnx"]
+    assert files["one_r"] == files["six_r"]
+    assert files["six"] == ["models/keypoints.onnx"]
     fit = {"keypoints": "detected", "keypoint_offsets": {
         "shipped": None, "wide": None, "pretrained": "p.parquet"}}
+    keypoints = {n: perception_for(row, CFG)["keypoints"] for n, row in seqs.items()}
     assert fit_offsets(fit, "shipped", keypoints["six_l"]) == ("p.parquet", ("left",))
-    assert fit_offsets(fit, "shipped", keypoints["one_r"]) == (None, ())
+    assert fit_offsets(fit, "shipped", keypoints["one_r"]) == ("p.parquet", ("right",))
+    assert fit_offsets(fit, "shipped", keypoints["six"]) == (None, ())
     for hands in ("model", "mediapipe"):
         cfg = validate({"keypoints": {"hands": hands}}, "stages/perception.schema.yaml")
         assert perception_for(seqs["six_r"], cfg) is cfg

