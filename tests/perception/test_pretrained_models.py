@@ -366,6 +366,30 @@ def test_signer_is_known_by_colour_when_two_people_change_places():
     assert np.isnan(blind[1]["appearance"])
 
 
+def test_colour_check_takes_a_detected_person_whose_pose_model_is_unsure():
+    """As above, but the pose model is unsure of the signer's own pose where they stand in
+    the second frame (presence 0.2, below min_pose_presence: a person half hidden behind
+    another while the two cross). The detector found them, so the colour check still
+    measures them and takes them; without that the copy would stay the signer."""
+    import dataclasses
+
+    a = read_rgb(DATA / f"{SYNTHETIC}.png")
+    b = np.ascontiguousarray(a[..., ::-1])
+    frames = [np.hstack([a, b]), np.hstack([b, a])]
+    masking = _masking({"rule": "box", "box": [0, 0, 256, 256]})
+    pose = masking.model.pose
+
+    def unsure_on_the_right(image, roi):
+        out = pose(image, roi)
+        return dataclasses.replace(out, presence=0.2) if roi.cx > 256 else out
+
+    masking.model.pose = unsure_on_the_right
+    chosen = [next(r for r in masking(f, np.ones(f.shape[:2], np.float32), 0)[1]
+                   if r["chosen"]) for f in frames]
+    assert [r["chosen_by"] for r in chosen] == ["box", "appearance"]
+    assert [r["hip_x"] > 256 for r in chosen] == [False, True]
+
+
 @pytest.mark.skipif(not CLIP.is_file(), reason=f"the example clip is not fetched into {CACHE}")
 def test_signer_stays_the_man_in_the_suit_where_the_men_cross():
     """Example clip, frames 200-299: the man in the suit (taken by the box of

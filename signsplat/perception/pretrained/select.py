@@ -387,21 +387,24 @@ class SignerMasking:
         pose, hip, scale = signer
         prob = person_probability(pose.segmentation, pose.roi, (h, w))
         others = []  # (row, pose, probability) of the people around the signer
+        unsure = []  # detected people whose pose model is unsure: colour candidates only
         for j in range(min(len(det), self.max_people)):
             if j == chosen:
                 continue
             other = self.model.pose(image, self.model.person_roi(*det.keypoints[j, :2]))
-            if other.presence >= min_presence:
-                others.append((j, other, person_probability(other.segmentation, other.roi,
-                                                            (h, w))))
-        candidates = len(others)  # the ones the colour check may take instead
+            person = (j, other, person_probability(other.segmentation, other.roi, (h, w)))
+            (others if other.presence >= min_presence else unsure).append(person)
+        candidates = others + unsure  # the ones the colour check may take instead
         others += self._weak_neighbours(image, rows, det, weak, pose, len(others))
         if self.rule.appearance_margin is not None:
-            k = self._check_identity(image, rows, chosen, prob, pose, others[:candidates],
-                                     others[candidates:])
+            k = self._check_identity(image, rows, chosen, prob, pose, candidates,
+                                     others[len(candidates) - len(unsure):])
             if k is not None:  # another person wears the signer's colours: take them
-                j, new_pose, new_prob = others[k]
-                others[k] = (chosen, pose, prob)
+                j, new_pose, new_prob = candidates[k]
+                if k < len(candidates) - len(unsure):
+                    others[k] = (chosen, pose, prob)
+                else:  # the one taken for the signer now stands beside them
+                    others.append((chosen, pose, prob))
                 chosen, pose, prob, how = j, new_pose, new_prob, "appearance"
                 hip, scale = det.keypoints[j, 0], det.keypoints[j, 1]
                 self.selector.keep(det.boxes[j])
