@@ -386,22 +386,24 @@ class SignerMasking:
             return np.zeros_like(alpha), rows
         pose, hip, scale = signer
         prob = person_probability(pose.segmentation, pose.roi, (h, w))
+        colour_check = self.rule.appearance_margin is not None
         others = []  # (row, pose, probability) of the people around the signer
         unsure = []  # detected people whose pose model is unsure: colour candidates only
         for j in range(min(len(det), self.max_people)):
             if j == chosen:
                 continue
             other = self.model.pose(image, self.model.person_roi(*det.keypoints[j, :2]))
-            person = (j, other, person_probability(other.segmentation, other.roi, (h, w)))
-            (others if other.presence >= min_presence else unsure).append(person)
+            if other.presence >= min_presence or colour_check:
+                person = (j, other, person_probability(other.segmentation, other.roi, (h, w)))
+                (others if other.presence >= min_presence else unsure).append(person)
+        sure = len(others)
         candidates = others + unsure  # the ones the colour check may take instead
         others += self._weak_neighbours(image, rows, det, weak, pose, len(others))
-        if self.rule.appearance_margin is not None:
-            k = self._check_identity(image, rows, chosen, prob, pose, candidates,
-                                     others[len(candidates) - len(unsure):])
+        if colour_check:
+            k = self._check_identity(image, rows, chosen, prob, pose, candidates, others[sure:])
             if k is not None:  # another person wears the signer's colours: take them
                 j, new_pose, new_prob = candidates[k]
-                if k < len(candidates) - len(unsure):
+                if k < sure:
                     others[k] = (chosen, pose, prob)
                 else:  # the one taken for the signer now stands beside them
                     others.append((chosen, pose, prob))
