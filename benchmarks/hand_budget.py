@@ -1,0 +1,160 @@
+"""Where the signing hand's held-out PSNR goes: the avatar trained on the fit, on the truth, and
+on mixtures of the two that swap one part of the signing arm.
+
+On a finished run of a synthetic sequence (``make demo``'s results), the demo avatar is trained
+and evaluated again on SMPL-X tables that mix the fit's parameters with the simulator's:
+
+- ``truth``: the simulator's SMPL-X and cameras (what the avatar reaches with no fit error);
+- ``truth_fit_fingers``: the truth with the fit's finger pose of the signing hand;
+- ``truth_fit_arm``: the truth with the fit's signing arm (collar, shoulder, elbow and wrist
+  angles) and fingers;
+- ``fit_true_fingers``, ``fit_true_arm``: the fit (its cameras) with the truth's fingers, or
+  arm and fingers, of the signing hand;
+- ``--fits name=folder``: another fit folder of the same scene (e.g. one fitted with the
+  cameras held at their calibration), as it is.
+
+The fit's own avatar is the run's ``eval/demo`` (pass ``--fitted`` to train it again). Each
+training is the command the workflow runs, with the demo variant's resolved config, one thread
+per job, ``--jobs`` at a time.
+
+    python benchmarks/hand_budget.py --results results --scene studio6 --hand right \
+        --work /tmp/budget --out benchmarks/results/hand_budget.parquet
+
+Prints PSNR per run, split and part (background replaced, no refinement); ``--out`` saves them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from signsplat.body.joints import SMPLX_JOINT_NAMES
+from signsplat.config import load_config
+from signsplat.plan import plan
+
+ARM = ("collar", "shoulder", "elbow", "wrist")
+MIXES = {  # name: (base, donor, donor's parts)
+    "truth": ("truth", None, ()),
+    "truth_fit_fingers": ("truth", "fit", ("fingers",)),
+    "truth_fit_arm": ("truth", "fit", ("fingers", "arm")),
+    "fit_true_fingers": ("fit", "truth", ("fingers",)),
+    "fit_true_arm": ("fit", "truth", ("fingers", "arm")),
+}
+
+
+def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: str
+        ) -> pd.DataFrame:
+    """``base`` with ``donor``'s finger pose and/or arm angles of one side, frame by frame
+    (both tables sorted by frame, the same frames)."""
+    out = base.copy()
+    if "fingers" in parts:
+        out[f"{hand}_hand_pose"] = list(donor[f"{hand}_hand_pose"])
+    if "arm" in parts:
+        # body_pose holds the joints after the pelvis, three values each
+        slots = [SMPLX_JOINT_NAMES.index(f"{hand}_{j}") - 1 for j in ARM]
+        poses = []
+        for a, b in zip(base["body_pose"], donor["body_pose"]):
+            a = np.asarray(a, np.float64).reshape(-1, 3).copy()
+            a[slots] = np.asarray(b, np.float64).reshape(-1, 3)[slots]
+            poses.append(a.ravel())
+        out["body_pose"] = poses
+    return out
+
+
+def demo_sections(config: str, scene: str) -> tuple[str, str]:
+    """The demo variant's train and eval config of ``scene``, as the workflow passes them."""
+    user = yaml.safe_load(Path(config).read_text()) or {}
+    p = plan(load_config(config), user)
+    return (json.dumps(p.train_section("demo", scene)), json.dumps(p.eval_section("demo", scene)))
+
+
+def train_and_score(name: str, smplx: Path, cameras: Path, common: list[str], cfgs, work: Path,
+                    ) -> Path:
+    train_cfg, eval_cfg = cfgs
+    out = work / name
+    out.mkdir(parents=True, exist_ok=True)
+    py = [sys.executable, "-m", "signsplat"]
+    args = common + ["--cameras", str(cameras), "--smplx", str(smplx), "--variant", "demo",
+                     "--threads", "1", "--device", "cpu"]
+    with open(out / "train.log", "w") as log:
+        subprocess.run(py + ["train-avatar", *args, "--config-json", train_cfg, "--out",
+                             str(out / "avatar"), "--no-progress"],
+                       check=True, stdout=log, stderr=subprocess.STDOUT)
+    with open(out / "eval.log", "w") as log:
+        subprocess.run(py + ["evaluate-avatar", *args, "--config-json", eval_cfg,
+                             "--checkpoint", str(out / "avatar" / "checkpoint.pt"),
+                             "--out", str(out / "eval")],
+                       check=True, stdout=log, stderr=subprocess.STDOUT)
+    return out / "eval" / "metrics.parquet"
+
+
+def scores(name: str, metrics: Path) -> pd.DataFrame:
+    m = pd.read_parquet(metrics)
+    m = m[(m.metric == "psnr") & (m.protocol == "bg_replaced")]
+    return m.assign(run=name)[["run", "split", "part", "value", "std_error", "train_seconds"]]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--results", required=True, help="a finished run's results folder")
+    p.add_argument("--scene", default="studio6")
+    p.add_argument("--hand", choices=("left", "right"), default="right",
+                   help="the signing hand")
+    p.add_argument("--config", default="config/config.yaml")
+    p.add_argument("--runs", nargs="+", default=list(MIXES), choices=list(MIXES))
+    p.add_argument("--fits", nargs="*", default=[], metavar="NAME=FOLDER")
+    p.add_argument("--fitted", action="store_true", help="train the fit's own avatar again")
+    p.add_argument("--work", required=True, help="folder for the avatars")
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--out")
+    args = p.parse_args()
+
+    res = Path(args.results) / args.scene
+    sim, fit = res / "sim", res / "fit"
+    tables = {"truth": pd.read_parquet(sim / "smplx_gt.parquet").sort_values("frame"),
+              "fit": pd.read_parquet(fit / "smplx_fit.parquet").sort_values("frame")}
+    if not np.array_equal(tables["truth"]["frame"].to_numpy(), tables["fit"]["frame"].to_numpy()):
+        raise SystemExit(f"{fit}: the fit's frames are not the simulation's")
+    cams = {"truth": sim / "cameras.parquet", "fit": fit / "cameras_fit.parquet"}
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    jobs = {}
+    for name in args.runs:
+        base, donor, parts = MIXES[name]
+        table = tables[base] if donor is None else mix(tables[base], tables[donor], parts,
+                                                       args.hand)
+        path = work / f"{name}.parquet"
+        table.to_parquet(path)
+        jobs[name] = (path, cams[base])
+    for spec in args.fits:
+        name, folder = spec.split("=", 1)
+        jobs[name] = (Path(folder) / "smplx_fit.parquet", Path(folder) / "cameras_fit.parquet")
+    if args.fitted:
+        jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
+    common = ["--body", str(Path(args.results) / "_assets" / "body_model.npz"),
+              "--frames", str(sim / "frames.parquet")]
+    cfgs = demo_sections(args.config, args.scene)
+    with ThreadPoolExecutor(args.jobs) as pool:
+        done = {n: pool.submit(train_and_score, n, s, c, common, cfgs, work)
+                for n, (s, c) in jobs.items()}
+    frames = [scores(n, f.result()) for n, f in done.items()]
+    if not args.fitted:
+        frames.insert(0, scores("fit", res / "eval" / "demo" / "metrics.parquet"))
+    table = pd.concat(frames, ignore_index=True).assign(scene=args.scene, hand=args.hand)
+    wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
+                             sort=False).round(2)
+    print(wide.to_string())
+    if args.out:
+        table.to_parquet(args.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,37 @@
+"""benchmarks/hand_budget.py: SMPL-X tables that swap one part of the signing arm."""
+
+import numpy as np
+import pandas as pd
+from benchmark_scripts import load_benchmark
+
+from signsplat.body.joints import SMPLX_JOINT_NAMES
+
+
+def _table(value: float, frames: int = 3) -> pd.DataFrame:
+    return pd.DataFrame({"frame": range(frames),
+                         "body_pose": [np.full(63, value) for _ in range(frames)],
+                         "left_hand_pose": [np.full(45, value) for _ in range(frames)],
+                         "right_hand_pose": [np.full(45, value) for _ in range(frames)],
+                         "transl": [np.full(3, value) for _ in range(frames)]})
+
+
+def test_the_arm_swap_takes_exactly_the_signing_sides_four_joints_and_fingers():
+    mix = load_benchmark("hand_budget").mix
+    base, donor = _table(0.0), _table(1.0)
+    out = mix(base, donor, ("fingers", "arm"), "right")
+    body = np.stack(out["body_pose"]).reshape(3, 21, 3)
+    took = {SMPLX_JOINT_NAMES[j + 1] for j in np.flatnonzero(body[0, :, 0] == 1.0)}
+    assert took == {"right_collar", "right_shoulder", "right_elbow", "right_wrist"}
+    assert (body[:, :, 0] == body[:, :, 2]).all()  # whole joints, every frame
+    assert (np.stack(out["right_hand_pose"]) == 1.0).all()
+    assert (np.stack(out["left_hand_pose"]) == 0.0).all()
+    assert (np.stack(out["transl"]) == 0.0).all()
+    assert (np.stack(base["body_pose"]) == 0.0).all()  # the base table is left as it was
+
+
+def test_the_finger_swap_leaves_the_arm_and_the_other_hand():
+    mix = load_benchmark("hand_budget").mix
+    out = mix(_table(0.0), _table(1.0), ("fingers",), "left")
+    assert (np.stack(out["body_pose"]) == 0.0).all()
+    assert (np.stack(out["left_hand_pose"]) == 1.0).all()
+    assert (np.stack(out["right_hand_pose"]) == 0.0).all()
