@@ -119,6 +119,12 @@ def main() -> None:
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
+    demo = res / "eval" / "demo" / "metrics.parquet"
+    needed = [sim / "smplx_gt.parquet", fit / "smplx_fit.parquet"] + ([] if args.fitted else [demo])
+    missing = [str(f) for f in needed if not f.exists()]
+    if missing:
+        raise SystemExit(f"missing {', '.join(missing)}: run `make demo` first (or pass --fitted "
+                         "to train the fit's avatar here too)")
     tables = {"truth": pd.read_parquet(sim / "smplx_gt.parquet").sort_values("frame"),
               "fit": pd.read_parquet(fit / "smplx_fit.parquet").sort_values("frame")}
     if not np.array_equal(tables["truth"]["frame"].to_numpy(), tables["fit"]["frame"].to_numpy()):
@@ -147,7 +153,7 @@ def main() -> None:
                 for n, (s, c) in jobs.items()}
     frames = [scores(n, f.result()) for n, f in done.items()]
     if not args.fitted:
-        frames.insert(0, scores("fit", res / "eval" / "demo" / "metrics.parquet"))
+        frames.insert(0, scores("fit", demo))
     table = pd.concat(frames, ignore_index=True).assign(scene=args.scene, hand=args.hand)
     wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
                              sort=False).round(2)
