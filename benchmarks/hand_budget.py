@@ -141,7 +141,10 @@ def main() -> None:
         table.to_parquet(path)
         jobs[name] = (path, cams[base])
     for spec in args.fits:
-        name, folder = spec.split("=", 1)
+        name, sep, folder = spec.partition("=")
+        if not (name and sep and (Path(folder) / "smplx_fit.parquet").exists()):
+            raise SystemExit(f"--fits {spec!r}: give NAME=FOLDER, a fit folder with "
+                             "smplx_fit.parquet and cameras_fit.parquet")
         jobs[name] = (Path(folder) / "smplx_fit.parquet", Path(folder) / "cameras_fit.parquet")
     if args.fitted:
         jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
