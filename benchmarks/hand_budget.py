@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from signsplat.body.joints import SMPLX_JOINT_NAMES
+from signsplat.body.joints import JOINT_INDEX
 from signsplat.config import load_config
 from signsplat.plan import plan
 
@@ -59,7 +59,7 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
         out[f"{hand}_hand_pose"] = list(donor[f"{hand}_hand_pose"])
     if "arm" in parts:
         # body_pose holds the joints after the pelvis, three values each
-        slots = [SMPLX_JOINT_NAMES.index(f"{hand}_{j}") - 1 for j in ARM]
+        slots = [JOINT_INDEX[f"{hand}_{j}"] - 1 for j in ARM]
         poses = []
         for a, b in zip(base["body_pose"], donor["body_pose"]):
             a = np.asarray(a, np.float64).reshape(-1, 3).copy()
@@ -130,9 +130,15 @@ def main() -> None:
     if not np.array_equal(tables["truth"]["frame"].to_numpy(), tables["fit"]["frame"].to_numpy()):
         raise SystemExit(f"{fit}: the fit's frames are not the simulation's")
     cams = {"truth": sim / "cameras.parquet", "fit": fit / "cameras_fit.parquet"}
+    jobs = {}
+    for spec in args.fits:
+        name, sep, folder = spec.partition("=")
+        if not (name and sep and (Path(folder) / "smplx_fit.parquet").exists()):
+            raise SystemExit(f"--fits {spec!r}: give NAME=FOLDER, a fit folder with "
+                             "smplx_fit.parquet and cameras_fit.parquet")
+        jobs[name] = (Path(folder) / "smplx_fit.parquet", Path(folder) / "cameras_fit.parquet")
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    jobs = {}
     for name in args.runs:
         base, donor, parts = MIXES[name]
         table = tables[base] if donor is None else mix(tables[base], tables[donor], parts,
@@ -140,12 +146,6 @@ def main() -> None:
         path = work / f"{name}.parquet"
         table.to_parquet(path)
         jobs[name] = (path, cams[base])
-    for spec in args.fits:
-        name, sep, folder = spec.partition("=")
-        if not (name and sep and (Path(folder) / "smplx_fit.parquet").exists()):
-            raise SystemExit(f"--fits {spec!r}: give NAME=FOLDER, a fit folder with "
-                             "smplx_fit.parquet and cameras_fit.parquet")
-        jobs[name] = (Path(folder) / "smplx_fit.parquet", Path(folder) / "cameras_fit.parquet")
     if args.fitted:
         jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
     common = ["--body", str(Path(args.results) / "_assets" / "body_model.npz"),
