@@ -393,9 +393,10 @@ class SignerMasking:
             if j == chosen:
                 continue
             other = self.model.pose(image, self.model.person_roi(*det.keypoints[j, :2]))
-            if other.presence >= min_presence or colour_check:
+            sure_pose = other.presence >= min_presence
+            if sure_pose or colour_check:
                 person = (j, other, person_probability(other.segmentation, other.roi, (h, w)))
-                (others if other.presence >= min_presence else unsure).append(person)
+                (others if sure_pose else unsure).append(person)
         sure = len(others)
         candidates = others + unsure  # the ones the colour check may take instead
         others += self._weak_neighbours(image, rows, det, weak, pose, len(others))
