@@ -15,7 +15,8 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
 
 The fit's own avatar is the run's ``eval/demo`` (pass ``--fitted`` to train it again). Each
 training is the command the workflow runs, with the demo variant's resolved config, one thread
-per job, ``--jobs`` at a time.
+per job, ``--jobs`` at a time; ``--iterations N`` trains every run, the fit's own too, for N
+steps instead of the demo profile's.
 
     python benchmarks/hand_budget.py --results results --scene studio6 --hand right \
         --work /tmp/budget --out benchmarks/results/hand_budget.parquet
@@ -69,11 +70,15 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
     return out
 
 
-def demo_sections(config: str, scene: str) -> tuple[str, str]:
-    """The demo variant's train and eval config of ``scene``, as the workflow passes them."""
+def demo_sections(config: str, scene: str, iterations: int | None = None) -> tuple[str, str]:
+    """The demo variant's train and eval config of ``scene``, as the workflow passes them;
+    ``iterations`` replaces the training's step count."""
     user = yaml.safe_load(Path(config).read_text()) or {}
     p = plan(load_config(config), user)
-    return (json.dumps(p.train_section("demo", scene)), json.dumps(p.eval_section("demo", scene)))
+    train = p.train_section("demo", scene)
+    if iterations is not None:
+        train["train"]["iterations"] = iterations
+    return json.dumps(train), json.dumps(p.eval_section("demo", scene))
 
 
 def train_and_score(name: str, smplx: Path, cameras: Path, common: list[str], cfgs, work: Path,
@@ -112,10 +117,16 @@ def main() -> None:
     p.add_argument("--runs", nargs="+", default=list(MIXES), choices=list(MIXES))
     p.add_argument("--fits", nargs="*", default=[], metavar="NAME=FOLDER")
     p.add_argument("--fitted", action="store_true", help="train the fit's own avatar again")
+    p.add_argument("--iterations", type=int,
+                   help="training steps instead of the demo profile's (implies --fitted)")
     p.add_argument("--work", required=True, help="folder for the avatars")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out")
     args = p.parse_args()
+    if args.iterations is not None:
+        if args.iterations < 1:
+            raise SystemExit(f"--iterations {args.iterations}: give a step count >= 1")
+        args.fitted = True  # make demo's own avatar has the demo profile's steps
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
@@ -150,14 +161,16 @@ def main() -> None:
         jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
     common = ["--body", str(Path(args.results) / "_assets" / "body_model.npz"),
               "--frames", str(sim / "frames.parquet")]
-    cfgs = demo_sections(args.config, args.scene)
+    cfgs = demo_sections(args.config, args.scene, args.iterations)
     with ThreadPoolExecutor(args.jobs) as pool:
         done = {n: pool.submit(train_and_score, n, s, c, common, cfgs, work)
                 for n, (s, c) in jobs.items()}
     frames = [scores(n, f.result()) for n, f in done.items()]
     if not args.fitted:
         frames.insert(0, scores("fit", demo))
-    table = pd.concat(frames, ignore_index=True).assign(scene=args.scene, hand=args.hand)
+    steps = json.loads(cfgs[0])["train"]["iterations"]
+    table = pd.concat(frames, ignore_index=True).assign(scene=args.scene, hand=args.hand,
+                                                        iterations=steps)
     wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
                              sort=False).round(2)
     print(wide.to_string())

@@ -35,3 +35,15 @@ def test_the_finger_swap_leaves_the_arm_and_the_other_hand():
     assert (np.stack(out["body_pose"]) == 0.0).all()
     assert (np.stack(out["left_hand_pose"]) == 1.0).all()
     assert (np.stack(out["right_hand_pose"]) == 0.0).all()
+
+
+def test_iterations_replace_only_the_training_step_count():
+    import json
+    from pathlib import Path
+    sections = load_benchmark("hand_budget").demo_sections
+    config = str(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
+    (train, evals), (longer, evals2) = sections(config, "studio6"), sections(config, "studio6", 1234)
+    train, longer = json.loads(train), json.loads(longer)
+    assert longer["train"].pop("iterations") == 1234
+    assert train["train"].pop("iterations") != 1234
+    assert longer == train and evals2 == evals
