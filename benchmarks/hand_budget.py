@@ -10,6 +10,9 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
   angles) and fingers;
 - ``fit_true_fingers``, ``fit_true_arm``: the fit (its cameras) with the truth's fingers, or
   arm and fingers, of the signing hand;
+- ``fit_true_head``, ``fit_true_head_arm``: the fit with the truth's head (neck and head
+  angles, jaw, eyes and expression; the face is behind the signing hand in most crops), alone
+  or with the signing arm and fingers;
 - ``--fits name=folder``: another fit folder of the same scene (e.g. one fitted with the
   cameras held at their calibration), as it is.
 
@@ -42,25 +45,34 @@ from signsplat.config import load_config
 from signsplat.plan import plan
 
 ARM = ("collar", "shoulder", "elbow", "wrist")
+HEAD_JOINTS = ("neck", "head")
+HEAD_COLUMNS = ("jaw_pose", "leye_pose", "reye_pose", "expression")
 MIXES = {  # name: (base, donor, donor's parts)
     "truth": ("truth", None, ()),
     "truth_fit_fingers": ("truth", "fit", ("fingers",)),
     "truth_fit_arm": ("truth", "fit", ("fingers", "arm")),
     "fit_true_fingers": ("fit", "truth", ("fingers",)),
     "fit_true_arm": ("fit", "truth", ("fingers", "arm")),
+    "fit_true_head": ("fit", "truth", ("head",)),
+    "fit_true_head_arm": ("fit", "truth", ("head", "fingers", "arm")),
 }
 
 
 def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: str
         ) -> pd.DataFrame:
-    """``base`` with ``donor``'s finger pose and/or arm angles of one side, frame by frame
-    (both tables sorted by frame, the same frames)."""
+    """``base`` with ``donor``'s finger pose, arm angles (of one side) and/or head, frame by
+    frame (both tables sorted by frame, the same frames)."""
     out = base.copy()
     if "fingers" in parts:
         out[f"{hand}_hand_pose"] = list(donor[f"{hand}_hand_pose"])
-    if "arm" in parts:
+    if "head" in parts:
+        for col in HEAD_COLUMNS:
+            out[col] = list(donor[col])
+    joints = ([f"{hand}_{j}" for j in ARM] if "arm" in parts else []) + \
+        (list(HEAD_JOINTS) if "head" in parts else [])
+    if joints:
         # body_pose holds the joints after the pelvis, three values each
-        slots = [JOINT_INDEX[f"{hand}_{j}"] - 1 for j in ARM]
+        slots = [JOINT_INDEX[j] - 1 for j in joints]
         poses = []
         for a, b in zip(base["body_pose"], donor["body_pose"]):
             a = np.asarray(a, np.float64).reshape(-1, 3).copy()

@@ -10,6 +10,10 @@ from signsplat.body.joints import SMPLX_JOINT_NAMES
 def _table(value: float, frames: int = 3) -> pd.DataFrame:
     return pd.DataFrame({"frame": range(frames),
                          "body_pose": [np.full(63, value) for _ in range(frames)],
+                         "jaw_pose": [np.full(3, value) for _ in range(frames)],
+                         "leye_pose": [np.full(3, value) for _ in range(frames)],
+                         "reye_pose": [np.full(3, value) for _ in range(frames)],
+                         "expression": [np.full(10, value) for _ in range(frames)],
                          "left_hand_pose": [np.full(45, value) for _ in range(frames)],
                          "right_hand_pose": [np.full(45, value) for _ in range(frames)],
                          "transl": [np.full(3, value) for _ in range(frames)]})
@@ -35,6 +39,21 @@ def test_the_finger_swap_leaves_the_arm_and_the_other_hand():
     assert (np.stack(out["body_pose"]) == 0.0).all()
     assert (np.stack(out["left_hand_pose"]) == 1.0).all()
     assert (np.stack(out["right_hand_pose"]) == 0.0).all()
+
+
+def test_the_head_swap_takes_neck_head_jaw_eyes_and_expression_with_the_arm_or_alone():
+    mix = load_benchmark("hand_budget").mix
+    for parts, joints in ((("head",), {"neck", "head"}),
+                          (("head", "fingers", "arm"), {"neck", "head", "right_collar",
+                                                        "right_shoulder", "right_elbow",
+                                                        "right_wrist"})):
+        out = mix(_table(0.0), _table(1.0), parts, "right")
+        body = np.stack(out["body_pose"]).reshape(3, 21, 3)
+        assert {SMPLX_JOINT_NAMES[j + 1] for j in np.flatnonzero(body[0, :, 0] == 1.0)} == joints
+        for col in ("jaw_pose", "leye_pose", "reye_pose", "expression"):
+            assert (np.stack(out[col]) == 1.0).all()
+        assert (np.stack(out["right_hand_pose"]) == float("fingers" in parts)).all()
+        assert (np.stack(out["left_hand_pose"]) == 0.0).all()
 
 
 def test_iterations_replace_only_the_training_step_count():
