@@ -13,6 +13,8 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
 - ``fit_true_head``, ``fit_true_head_arm``: the fit with the truth's head (neck and head
   angles, jaw, eyes and expression; the face is behind the signing hand in most crops), alone
   or with the signing arm and fingers;
+- ``fit_true_shape``, ``fit_true_head_arm_shape``: the fit with the truth's body shape
+  (``betas``), alone or with the head, the signing arm and fingers;
 - ``--fits name=folder``: another fit folder of the same scene (e.g. one fitted with the
   cameras held at their calibration), as it is.
 
@@ -55,14 +57,18 @@ MIXES = {  # name: (base, donor, donor's parts)
     "fit_true_arm": ("fit", "truth", ("fingers", "arm")),
     "fit_true_head": ("fit", "truth", ("head",)),
     "fit_true_head_arm": ("fit", "truth", ("head", "fingers", "arm")),
+    "fit_true_shape": ("fit", "truth", ("shape",)),
+    "fit_true_head_arm_shape": ("fit", "truth", ("head", "fingers", "arm", "shape")),
 }
 
 
 def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: str
         ) -> pd.DataFrame:
-    """``base`` with ``donor``'s finger pose, arm angles (of one side) and/or head, frame by
-    frame (both tables sorted by frame, the same frames)."""
+    """``base`` with ``donor``'s finger pose, arm angles (of one side), head and/or shape,
+    frame by frame (both tables sorted by frame, the same frames)."""
     out = base.copy()
+    if "shape" in parts:
+        out["betas"] = list(donor["betas"])
     if "fingers" in parts:
         out[f"{hand}_hand_pose"] = list(donor[f"{hand}_hand_pose"])
     if "head" in parts:

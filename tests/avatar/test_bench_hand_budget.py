@@ -14,6 +14,7 @@ def _table(value: float, frames: int = 3) -> pd.DataFrame:
                          "leye_pose": [np.full(3, value) for _ in range(frames)],
                          "reye_pose": [np.full(3, value) for _ in range(frames)],
                          "expression": [np.full(10, value) for _ in range(frames)],
+                         "betas": [np.full(10, value) for _ in range(frames)],
                          "left_hand_pose": [np.full(45, value) for _ in range(frames)],
                          "right_hand_pose": [np.full(45, value) for _ in range(frames)],
                          "transl": [np.full(3, value) for _ in range(frames)]})
@@ -54,6 +55,15 @@ def test_the_head_swap_takes_neck_head_jaw_eyes_and_expression_with_the_arm_or_a
             assert (np.stack(out[col]) == 1.0).all()
         assert (np.stack(out["right_hand_pose"]) == float("fingers" in parts)).all()
         assert (np.stack(out["left_hand_pose"]) == 0.0).all()
+        assert (np.stack(out["betas"]) == 0.0).all()
+
+
+def test_the_shape_swap_takes_the_betas_only():
+    mix = load_benchmark("hand_budget").mix
+    out = mix(_table(0.0), _table(1.0), ("shape",), "right")
+    assert (np.stack(out["betas"]) == 1.0).all()
+    for col in ("body_pose", "expression", "right_hand_pose", "left_hand_pose", "transl"):
+        assert (np.stack(out[col]) == 0.0).all()
 
 
 def test_iterations_replace_only_the_training_step_count():
