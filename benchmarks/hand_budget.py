@@ -21,7 +21,8 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
 The fit's own avatar is the run's ``eval/demo`` (pass ``--fitted`` to train it again). Each
 training is the command the workflow runs, with the demo variant's resolved config, one thread
 per job, ``--jobs`` at a time; ``--iterations N`` trains every run, the fit's own too, for N
-steps instead of the demo profile's.
+steps instead of the demo profile's; ``--no-finetune`` trains every run on its SMPL-X table as
+it is (``train.finetune_smplx`` off).
 
     python benchmarks/hand_budget.py --results results --scene studio6 --hand right \
         --work /tmp/budget --out benchmarks/results/hand_budget.parquet
@@ -88,14 +89,18 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
     return out
 
 
-def demo_sections(config: str, scene: str, iterations: int | None = None) -> tuple[str, str]:
+def demo_sections(config: str, scene: str, iterations: int | None = None,
+                  finetune: bool = True) -> tuple[str, str]:
     """The demo variant's train and eval config of ``scene``, as the workflow passes them;
-    ``iterations`` replaces the training's step count."""
+    ``iterations`` replaces the training's step count, ``finetune`` False keeps the SMPL-X
+    tables as they are (``train.finetune_smplx``)."""
     user = yaml.safe_load(Path(config).read_text()) or {}
     p = plan(load_config(config), user)
     train = p.train_section("demo", scene)
     if iterations is not None:
         train["train"]["iterations"] = iterations
+    if not finetune:
+        train["train"]["finetune_smplx"] = False
     return json.dumps(train), json.dumps(p.eval_section("demo", scene))
 
 
@@ -137,6 +142,9 @@ def main() -> None:
     p.add_argument("--fitted", action="store_true", help="train the fit's own avatar again")
     p.add_argument("--iterations", type=int,
                    help="training steps instead of the demo profile's (implies --fitted)")
+    p.add_argument("--no-finetune", dest="finetune", action="store_false",
+                   help="train on the SMPL-X tables as they are, without fine-tuning them "
+                        "(implies --fitted)")
     p.add_argument("--work", required=True, help="folder for the avatars")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out")
@@ -145,6 +153,8 @@ def main() -> None:
         if args.iterations < 1:
             raise SystemExit(f"--iterations {args.iterations}: give a step count >= 1")
         args.fitted = True  # make demo's own avatar has the demo profile's steps
+    if not args.finetune:
+        args.fitted = True
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
@@ -179,16 +189,17 @@ def main() -> None:
         jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
     common = ["--body", str(Path(args.results) / "_assets" / "body_model.npz"),
               "--frames", str(sim / "frames.parquet")]
-    cfgs = demo_sections(args.config, args.scene, args.iterations)
+    cfgs = demo_sections(args.config, args.scene, args.iterations, args.finetune)
     with ThreadPoolExecutor(args.jobs) as pool:
         done = {n: pool.submit(train_and_score, n, s, c, common, cfgs, work)
                 for n, (s, c) in jobs.items()}
     frames = [scores(n, f.result()) for n, f in done.items()]
     if not args.fitted:
         frames.insert(0, scores("fit", demo))
-    steps = json.loads(cfgs[0])["train"]["iterations"]
-    table = pd.concat(frames, ignore_index=True).assign(scene=args.scene, hand=args.hand,
-                                                        iterations=steps)
+    train = json.loads(cfgs[0])["train"]
+    table = pd.concat(frames, ignore_index=True).assign(
+        scene=args.scene, hand=args.hand, iterations=train["iterations"],
+        finetune_smplx=train["finetune_smplx"])
     wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
                              sort=False).round(2)
     print(wide.to_string())

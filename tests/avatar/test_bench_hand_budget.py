@@ -66,13 +66,19 @@ def test_the_shape_swap_takes_the_betas_only():
         assert (np.stack(out[col]) == 0.0).all()
 
 
-def test_iterations_replace_only_the_training_step_count():
+def test_iterations_and_no_finetune_replace_only_their_training_setting():
     import json
     from pathlib import Path
     sections = load_benchmark("hand_budget").demo_sections
     config = str(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
-    (train, evals), (longer, evals2) = sections(config, "studio6"), sections(config, "studio6", 1234)
+    train, evals = sections(config, "studio6")
+    longer, evals2 = sections(config, "studio6", 1234)
     train, longer = json.loads(train), json.loads(longer)
     assert longer["train"].pop("iterations") == 1234
     assert train["train"].pop("iterations") != 1234
     assert longer == train and evals2 == evals
+    frozen = json.loads(sections(config, "studio6", finetune=False)[0])
+    assert frozen["train"].pop("finetune_smplx") is False
+    assert train["train"].pop("finetune_smplx") is True
+    frozen["train"].pop("iterations")
+    assert frozen == train
