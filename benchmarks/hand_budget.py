@@ -199,7 +199,7 @@ def main() -> None:
     train = json.loads(cfgs[0])["train"]
     table = pd.concat(frames, ignore_index=True).assign(
         scene=args.scene, hand=args.hand, iterations=train["iterations"],
-        finetune_smplx=train["finetune_smplx"])
+        finetune_smplx=train["finetune_smplx"], lr_smplx=train["lr_smplx"])
     wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
                              sort=False).round(2)
     print(wide.to_string())
