@@ -149,12 +149,10 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out")
     args = p.parse_args()
-    if args.iterations is not None:
-        if args.iterations < 1:
-            raise SystemExit(f"--iterations {args.iterations}: give a step count >= 1")
-        args.fitted = True  # make demo's own avatar has the demo profile's steps
-    if not args.finetune:
-        args.fitted = True
+    if args.iterations is not None and args.iterations < 1:
+        raise SystemExit(f"--iterations {args.iterations}: give a step count >= 1")
+    if args.iterations is not None or not args.finetune:
+        args.fitted = True  # make demo's own avatar has the demo profile's settings, not these
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
