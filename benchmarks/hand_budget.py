@@ -15,6 +15,10 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
   or with the signing arm and fingers;
 - ``fit_true_shape``, ``fit_true_head_arm_shape``: the fit with the truth's body shape
   (``betas``), alone or with the head, the signing arm and fingers;
+- ``truth_fit_fingers_offset``: the truth with the fit's mean error of the signing hand's
+  fingers (over the frames) added: the part of their error that does not change;
+- ``truth_fit_fingers_varying``: the truth with the fit's fingers less that mean error: the
+  part that changes from frame to frame;
 - ``--fits name=folder``: another fit folder of the same scene (e.g. one fitted with the
   cameras held at their calibration), as it is.
 
@@ -22,7 +26,8 @@ The fit's own avatar is the run's ``eval/demo`` (pass ``--fitted`` to train it a
 training is the command the workflow runs, with the demo variant's resolved config, one thread
 per job, ``--jobs`` at a time; ``--iterations N`` trains every run, the fit's own too, for N
 steps instead of the demo profile's; ``--no-finetune`` trains every run on its SMPL-X table as
-it is (``train.finetune_smplx`` off).
+it is (``train.finetune_smplx`` off); ``--train KEY=VALUE`` sets any other training setting
+(a JSON value, e.g. ``--train pose_knot_spacing=4 seed=1``).
 
     python benchmarks/hand_budget.py --results results --scene studio6 --hand right \
         --work /tmp/budget --out benchmarks/results/hand_budget.parquet
@@ -60,18 +65,28 @@ MIXES = {  # name: (base, donor, donor's parts)
     "fit_true_head_arm": ("fit", "truth", ("head", "fingers", "arm")),
     "fit_true_shape": ("fit", "truth", ("shape",)),
     "fit_true_head_arm_shape": ("fit", "truth", ("head", "fingers", "arm", "shape")),
+    "truth_fit_fingers_offset": ("truth", "fit", ("fingers_offset",)),
+    "truth_fit_fingers_varying": ("truth", "fit", ("fingers_varying",)),
 }
 
 
 def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: str
         ) -> pd.DataFrame:
     """``base`` with ``donor``'s finger pose, arm angles (of one side), head and/or shape,
-    frame by frame (both tables sorted by frame, the same frames)."""
+    frame by frame (both tables sorted by frame, the same frames). ``fingers_offset`` adds to
+    ``base``'s fingers only the mean over the frames of ``donor``'s difference from them;
+    ``fingers_varying`` takes ``donor``'s fingers less that mean difference."""
     out = base.copy()
     if "shape" in parts:
         out["betas"] = list(donor["betas"])
+    column = f"{hand}_hand_pose"
     if "fingers" in parts:
-        out[f"{hand}_hand_pose"] = list(donor[f"{hand}_hand_pose"])
+        out[column] = list(donor[column])
+    if {"fingers_offset", "fingers_varying"} & set(parts):
+        ours = np.stack(base[column]).astype(np.float64)
+        theirs = np.stack(donor[column]).astype(np.float64)
+        offset = (theirs - ours).mean(0)
+        out[column] = list(ours + offset if "fingers_offset" in parts else theirs - offset)
     if "head" in parts:
         for col in HEAD_COLUMNS:
             out[col] = list(donor[col])
@@ -89,18 +104,17 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
     return out
 
 
-def demo_sections(config: str, scene: str, iterations: int | None = None,
-                  finetune: bool = True) -> tuple[str, str]:
-    """The demo variant's train and eval config of ``scene``, as the workflow passes them;
-    ``iterations`` replaces the training's step count, ``finetune`` False keeps the SMPL-X
-    tables as they are (``train.finetune_smplx``)."""
+def demo_sections(config: str, scene: str, settings: dict | None = None) -> tuple[str, str]:
+    """The demo variant's train and eval config of ``scene``, as the workflow passes them,
+    with ``settings`` replacing keys of its ``train`` section (e.g. ``iterations``)."""
     user = yaml.safe_load(Path(config).read_text()) or {}
     p = plan(load_config(config), user)
     train = p.train_section("demo", scene)
-    if iterations is not None:
-        train["train"]["iterations"] = iterations
-    if not finetune:
-        train["train"]["finetune_smplx"] = False
+    unknown = sorted(set(settings or {}) - set(train["train"]))
+    if unknown:
+        raise SystemExit(f"--train {', '.join(unknown)}: not a training setting; the settings "
+                         f"are {', '.join(sorted(train['train']))}")
+    train["train"].update(settings or {})
     return json.dumps(train), json.dumps(p.eval_section("demo", scene))
 
 
@@ -145,14 +159,27 @@ def main() -> None:
     p.add_argument("--no-finetune", dest="finetune", action="store_false",
                    help="train on the SMPL-X tables as they are, without fine-tuning them "
                         "(implies --fitted)")
+    p.add_argument("--train", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="other training settings, JSON values (implies --fitted)")
     p.add_argument("--work", required=True, help="folder for the avatars")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out")
     args = p.parse_args()
     if args.iterations is not None and args.iterations < 1:
         raise SystemExit(f"--iterations {args.iterations}: give a step count >= 1")
-    if args.iterations is not None or not args.finetune:
-        args.fitted = True  # make demo's own avatar has the demo profile's settings, not these
+    settings = {} if args.iterations is None else {"iterations": args.iterations}
+    if not args.finetune:
+        settings["finetune_smplx"] = False
+    for spec in args.train:
+        key, sep, value = spec.partition("=")
+        try:
+            settings[key] = json.loads(value)
+        except json.JSONDecodeError:
+            sep = ""
+        if not (key and sep):
+            raise SystemExit(f"--train {spec!r}: give KEY=VALUE with a JSON value")
+    if settings:
+        args.fitted = True  # make demo's own avatar has the demo profile's settings, not these  # make demo's own avatar has the demo profile's settings, not these
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
@@ -187,7 +214,7 @@ def main() -> None:
         jobs["fit"] = (fit / "smplx_fit.parquet", cams["fit"])
     common = ["--body", str(Path(args.results) / "_assets" / "body_model.npz"),
               "--frames", str(sim / "frames.parquet")]
-    cfgs = demo_sections(args.config, args.scene, args.iterations, args.finetune)
+    cfgs = demo_sections(args.config, args.scene, settings)
     with ThreadPoolExecutor(args.jobs) as pool:
         done = {n: pool.submit(train_and_score, n, s, c, common, cfgs, work)
                 for n, (s, c) in jobs.items()}
@@ -197,7 +224,8 @@ def main() -> None:
     train = json.loads(cfgs[0])["train"]
     table = pd.concat(frames, ignore_index=True).assign(
         scene=args.scene, hand=args.hand, iterations=train["iterations"],
-        finetune_smplx=train["finetune_smplx"], lr_smplx=train["lr_smplx"])
+        finetune_smplx=train["finetune_smplx"], lr_smplx=train["lr_smplx"],
+        settings=json.dumps(settings, sort_keys=True))
     wide = table.pivot_table(index=["run", "split"], columns="part", values="value",
                              sort=False).round(2)
     print(wide.to_string())

@@ -32,29 +32,69 @@ def build_model(body, betas: torch.Tensor, cfg: AvatarConfig) -> AvatarModel:
 
 
 class SmplxParams(nn.Module):
-    """Per-frame SMPL-X blocks (F, k); ``betas`` shared over the sequence (first frame's)."""
+    """Per-frame SMPL-X blocks (F, k); ``betas`` shared over the sequence (first frame's).
 
-    def __init__(self, params: dict[str, torch.Tensor], learnable: bool):
+    With ``frames`` and ``knot_spacing`` > 1 (and ``learnable``) every per-frame block is its
+    given values plus a learned correction that is piecewise linear in the frame number, with
+    a knot every ``knot_spacing`` frames (parameters ``<block>_knots``, (K, k), zero at the
+    start): a training frame's image loss then also corrects its neighbours, and a held-out
+    frame between them. Otherwise each frame's block is learned on its own."""
+
+    def __init__(self, params: dict[str, torch.Tensor], learnable: bool,
+                 frames=None, knot_spacing: int = 1):
         super().__init__()
         self.learnable = learnable
-        for name in SMPLX_BLOCKS:
-            if name not in params:
-                continue
+        self.names = [n for n in SMPLX_BLOCKS if n in params]
+        knotted = learnable and knot_spacing > 1 and frames is not None and len(frames) > 1
+        self.knotted: list[str] = []
+        if knotted:
+            self.register_buffer("knot_weights", knot_weights(frames, knot_spacing))
+        for name in self.names:
             value = params[name].float().clone()
             if name == "betas":
                 value = value[:1]
-            if learnable:
+            if knotted and name != "betas":
+                self.register_buffer(name, value)
+                k = torch.zeros(self.knot_weights.shape[1], value.shape[1])
+                setattr(self, f"{name}_knots", nn.Parameter(k))
+                self.knotted.append(name)
+            elif learnable:
                 setattr(self, name, nn.Parameter(value))
             else:
                 self.register_buffer(name, value)
-        self.names = [n for n in SMPLX_BLOCKS if n in params]
+
+    def block(self, name: str, idx: torch.Tensor | None = None) -> torch.Tensor:
+        """Block ``name`` of frames ``idx`` (all frames when None), corrections included."""
+        t = getattr(self, name)
+        if name in self.knotted:
+            w = self.knot_weights if idx is None else self.knot_weights[idx]
+            return (t if idx is None else t[idx]) + w @ getattr(self, f"{name}_knots")
+        return t if idx is None else t[idx]
 
     def get(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
         out = {}
         for name in self.names:
-            t = getattr(self, name)
-            out[name] = t.expand(len(idx), -1) if name == "betas" else t[idx]
+            out[name] = (getattr(self, name).expand(len(idx), -1) if name == "betas"
+                         else self.block(name, idx))
         return out
+
+    def frame_values(self) -> dict[str, torch.Tensor]:
+        """Every block for every frame as plain tensors (the checkpoint's ``smplx``)."""
+        return {name: self.block(name).detach().clone() for name in self.names}
+
+
+def knot_weights(frames, spacing: int) -> torch.Tensor:
+    """(F, K) weights of a piecewise linear function of the frame number with knots every
+    ``spacing`` frames from the first frame to past the last: row i interpolates frame i."""
+    f = torch.as_tensor(frames, dtype=torch.float64)
+    pos = (f - f.min()) / spacing
+    k = int(torch.floor(pos.max()).item()) + 2
+    lo = torch.floor(pos).long()
+    t = pos - lo
+    w = torch.zeros(len(f), k, dtype=torch.float64)
+    w[torch.arange(len(f)), lo] = 1.0 - t
+    w[torch.arange(len(f)), lo + 1] += t
+    return w.float()
 
 
 #: model settings added after avatars had been saved: a checkpoint without the key was trained

@@ -148,6 +148,7 @@ class TrainConfig:
     lr_smplx: float
     lr_betas: float | None  # the shared shape coefficients; None = lr_smplx
     lr_hand_poses: float | None  # the per-frame finger poses; None = lr_smplx
+    pose_knot_spacing: int  # frames between knots of the poses' corrections; 1 = per frame
     refine_cameras: bool | str  # true, false or "auto" (on for fitted cameras)
     lr_cameras: float  # rad and m per step (Adam) of the camera corrections
     refine_cameras_stop: int  # step after which the corrections stay fixed; 0 = never

@@ -177,7 +177,8 @@ class AvatarTrainer:
         self.rasterize = rasterize or default_rasterizer()
         self.background = torch.tensor(cfg.train.background, dtype=torch.float32,
                                        device=self.device)
-        self.smplx = SmplxParams(data.smplx, cfg.train.finetune_smplx).to(self.device)
+        self.smplx = SmplxParams(data.smplx, cfg.train.finetune_smplx, data.frames,
+                                 cfg.train.pose_knot_spacing).to(self.device)
         self.model = build_model(self.body, self.smplx.betas.detach(), cfg).to(self.device)
         self.colour_init_seen = 0
         if cfg.train.color_init == "images" and cfg.train.color_init_images > 0:
@@ -219,7 +220,8 @@ class AvatarTrainer:
         if self.smplx.learnable:
             # blocks with a rate of their own (None: lr_smplx); the rest at lr_smplx
             own = (("hand_poses", HAND_POSES, t.lr_hand_poses), ("betas", ("betas",), t.lr_betas))
-            named = list(self.smplx.named_parameters())
+            # a block's knots (train.pose_knot_spacing) learn at the block's rate
+            named = [(n.removesuffix("_knots"), p) for n, p in self.smplx.named_parameters()]
             taken = {n for _, names, _ in own for n in names}
             groups.append({"params": [p for n, p in named if n not in taken],
                            "lr": t.lr_smplx, "name": "smplx"})
@@ -366,7 +368,10 @@ class AvatarTrainer:
             "seconds": self.seconds,
             "config": to_dict(self.cfg),
             "model": self.model.state_dict(),
-            "smplx": self.smplx.state_dict(),
+            "smplx": self.smplx.frame_values(),
+            # the learned corrections of knotted blocks, for resuming (train.pose_knot_spacing)
+            "smplx_knots": {n: getattr(self.smplx, f"{n}_knots").detach().clone()
+                            for n in self.smplx.knotted},
             "cameras": self.cameras.state_dict(),
             # refined cameras, which evaluation uses in place of the input ones (None: as given)
             "viewmats": self.viewmats.detach().cpu() if self.cameras.enabled else None,
@@ -391,7 +396,13 @@ class AvatarTrainer:
         state = torch.load(path, map_location=self.device, weights_only=False)
         self.model.resize_like(state["model"])
         self.model.load_state_dict(state["model"])
-        self.smplx.load_state_dict(state["smplx"])
+        if self.smplx.knotted:
+            with torch.no_grad():
+                for n in self.smplx.knotted:
+                    getattr(self.smplx, f"{n}_knots").copy_(state["smplx_knots"][n])
+                self.smplx.betas.copy_(state["smplx"]["betas"][:1])
+        else:
+            self.smplx.load_state_dict(state["smplx"])
         if "cameras" in state:
             self.cameras.load_state_dict(state["cameras"])
         self.optimizer = self._make_optimizer()

@@ -84,10 +84,10 @@ def test_training_improves_psnr_and_writes_a_log(scene, tmp_path):
     assert len(read_table(tmp_path / "train_log.parquet", "avatar_train_log")) == 30
 
 
-@pytest.mark.parametrize("final", [1.0, 0.1])
-def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path, final):
+@pytest.mark.parametrize("final,knots", [(1.0, 1), (0.1, 1), (1.0, 3)])
+def test_resume_gives_the_same_result_as_an_uninterrupted_run(scene, tmp_path, final, knots):
     body, data = scene
-    cfg = _cfg(train={"lr_final_fraction": final})
+    cfg = _cfg(train={"lr_final_fraction": final, "pose_knot_spacing": knots})
     a = AvatarTrainer(body, data, cfg)
     a.run(iterations=3, checkpoint=tmp_path / "half.pt", progress=False)
     a.run(iterations=6, progress=False)
@@ -160,6 +160,44 @@ def test_finger_poses_have_their_own_learning_rate(scene):
     assert 0 < moved["body_pose"] <= 1.05 * 3 * 1e-4
     same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4, "lr_hand_poses": None}))
     assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["hand_poses"] == 2e-4
+
+
+def test_knotted_pose_corrections_move_the_neighbours_of_a_trained_frame(scene):
+    """train.pose_knot_spacing: a frame's image loss corrects the frames around it too (the
+    correction is piecewise linear in the frame number); per frame, only the frame itself."""
+    body, data = scene
+    moved = {}
+    for spacing in (1, 4):
+        tr = AvatarTrainer(body, data, _cfg(train={"pose_knot_spacing": spacing,
+                                                   "accumulate_poses": 1}))
+        before = tr.smplx.frame_values()["body_pose"]
+        (frame, _), = tr._sample()
+        tr.sampler.set_state(AvatarTrainer(body, data, tr.cfg).sampler.get_state())
+        tr.train_step()
+        after = tr.smplx.frame_values()["body_pose"]
+        step = (after - before).abs().amax(1)
+        assert step[frame] > 0
+        others = [i for i in range(len(data.frames)) if i != frame]
+        moved[spacing] = int((step[others] > 0).sum())
+        if spacing > 1:
+            assert set(tr.smplx.knotted) == {"expression", "global_orient", "body_pose",
+                                             "jaw_pose", "leye_pose", "reye_pose",
+                                             "left_hand_pose", "right_hand_pose", "transl"}
+            assert torch.isfinite(after).all()
+    assert moved[1] == 0 and moved[4] >= 2, moved
+
+
+def test_knot_weights_interpolate_linearly_between_knots():
+    from signsplat.avatar.checkpoint import knot_weights
+
+    w = knot_weights(np.arange(10, 20), 4)  # knots at frames 10, 14, 18, 22
+    assert w.shape == (10, 4)
+    torch.testing.assert_close(w.sum(1), torch.ones(10))
+    assert w[0, 0] == 1 and w[4, 1] == 1 and w[8, 2] == 1
+    torch.testing.assert_close(w[2, :2], torch.tensor([0.5, 0.5]))
+    torch.testing.assert_close(w[9, 2:], torch.tensor([0.75, 0.25]))
+    gaps = knot_weights(np.array([0, 1, 7]), 2)  # a gap in the frames skips knots
+    assert gaps.shape == (3, 5) and gaps[2, 3] == 0.5 and gaps[2, 4] == 0.5
 
 
 def _write_scene(root, data, smplx_override):

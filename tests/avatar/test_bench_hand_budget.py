@@ -66,19 +66,32 @@ def test_the_shape_swap_takes_the_betas_only():
         assert (np.stack(out[col]) == 0.0).all()
 
 
-def test_iterations_and_no_finetune_replace_only_their_training_setting():
+def test_the_finger_offset_and_the_varying_rest_add_up_to_the_donors_fingers():
+    mix = load_benchmark("hand_budget").mix
+    base, donor = _table(0.5), _table(0.0)
+    donor["right_hand_pose"] = [np.full(45, v) for v in (1.0, 2.0, 6.0)]  # mean offset 2.5
+    offset = np.stack(mix(base, donor, ("fingers_offset",), "right")["right_hand_pose"])
+    varying = np.stack(mix(base, donor, ("fingers_varying",), "right")["right_hand_pose"])
+    assert (offset == 3.0).all()  # the base's 0.5 and the mean difference
+    np.testing.assert_array_equal(varying[:, 0], [-1.5, -0.5, 3.5])
+    np.testing.assert_array_equal(offset + varying - 0.5, np.stack(donor["right_hand_pose"]))
+    assert (np.stack(mix(base, donor, ("fingers_offset",), "right")["left_hand_pose"]) == 0.5).all()
+
+
+def test_settings_replace_only_their_training_keys_and_unknown_keys_are_named():
     import json
     from pathlib import Path
+
+    import pytest
     sections = load_benchmark("hand_budget").demo_sections
     config = str(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
     train, evals = sections(config, "studio6")
-    longer, evals2 = sections(config, "studio6", 1234)
+    longer, evals2 = sections(config, "studio6", {"iterations": 1234, "finetune_smplx": False})
     train, longer = json.loads(train), json.loads(longer)
     assert longer["train"].pop("iterations") == 1234
     assert train["train"].pop("iterations") != 1234
-    assert longer == train and evals2 == evals
-    frozen = json.loads(sections(config, "studio6", finetune=False)[0])
-    assert frozen["train"].pop("finetune_smplx") is False
+    assert longer["train"].pop("finetune_smplx") is False
     assert train["train"].pop("finetune_smplx") is True
-    frozen["train"].pop("iterations")
-    assert frozen == train
+    assert longer == train and evals2 == evals
+    with pytest.raises(SystemExit, match="pose_knot_spacin.*not a training setting"):
+        sections(config, "studio6", {"pose_knot_spacin": 4})
