@@ -19,6 +19,8 @@ and evaluated again on SMPL-X tables that mix the fit's parameters with the simu
   fingers (over the frames) added: the part of their error that does not change;
 - ``truth_fit_fingers_varying``: the truth with the fit's fingers less that mean error: the
   part that changes from frame to frame;
+- ``truth_fit_fingers_but_thumb``: the truth with the fit's fingers of the signing hand but
+  the true thumb;
 - ``--fits name=folder``: another fit folder of the same scene (e.g. one fitted with the
   cameras held at their calibration), as it is.
 
@@ -67,7 +69,9 @@ MIXES = {  # name: (base, donor, donor's parts)
     "fit_true_head_arm_shape": ("fit", "truth", ("head", "fingers", "arm", "shape")),
     "truth_fit_fingers_offset": ("truth", "fit", ("fingers_offset",)),
     "truth_fit_fingers_varying": ("truth", "fit", ("fingers_varying",)),
+    "truth_fit_fingers_but_thumb": ("truth", "fit", ("fingers_but_thumb",)),
 }
+THUMB = slice(36, 45)  # the last three of a hand pose's 15 joints (3 values each)
 
 
 def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: str
@@ -75,7 +79,8 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
     """``base`` with ``donor``'s finger pose, arm angles (of one side), head and/or shape,
     frame by frame (both tables sorted by frame, the same frames). ``fingers_offset`` adds to
     ``base``'s fingers only the mean over the frames of ``donor``'s difference from them;
-    ``fingers_varying`` takes ``donor``'s fingers less that mean difference."""
+    ``fingers_varying`` takes ``donor``'s fingers less that mean difference;
+    ``fingers_but_thumb`` takes ``donor``'s fingers but keeps ``base``'s thumb."""
     out = base.copy()
     if "shape" in parts:
         out["betas"] = list(donor["betas"])
@@ -87,6 +92,10 @@ def mix(base: pd.DataFrame, donor: pd.DataFrame, parts: tuple[str, ...], hand: s
         theirs = np.stack(donor[column]).astype(np.float64)
         offset = (theirs - ours).mean(0)
         out[column] = list(ours + offset if "fingers_offset" in parts else theirs - offset)
+    if "fingers_but_thumb" in parts:
+        fingers = np.stack(donor[column]).astype(np.float64)
+        fingers[:, THUMB] = np.stack(base[column])[:, THUMB]
+        out[column] = list(fingers)
     if "head" in parts:
         for col in HEAD_COLUMNS:
             out[col] = list(donor[col])

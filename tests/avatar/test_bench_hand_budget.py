@@ -78,6 +78,15 @@ def test_the_finger_offset_and_the_varying_rest_add_up_to_the_donors_fingers():
     assert (np.stack(mix(base, donor, ("fingers_offset",), "right")["left_hand_pose"]) == 0.5).all()
 
 
+def test_the_thumb_stays_the_bases_when_the_other_fingers_are_swapped():
+    mix = load_benchmark("hand_budget").mix
+    out = np.stack(mix(_table(0.0), _table(1.0), ("fingers_but_thumb",), "right")
+                   ["right_hand_pose"]).reshape(3, 15, 3)
+    kept = {SMPLX_JOINT_NAMES[40 + j] for j in range(15) if (out[:, j] == 0.0).all()}
+    assert kept == {"right_thumb1", "right_thumb2", "right_thumb3"}
+    assert (np.delete(out, [12, 13, 14], axis=1) == 1.0).all()
+
+
 def test_settings_replace_only_their_training_keys_and_unknown_keys_are_named():
     import json
     from pathlib import Path
