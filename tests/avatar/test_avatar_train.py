@@ -127,7 +127,8 @@ def test_optimiser_groups_follow_the_schedule(scene):
 
 def test_shape_coefficients_have_their_own_learning_rate(scene):
     body, data = scene
-    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_betas": 5e-2}))
+    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_betas": 5e-2,
+                                                "pose_knot_spacing": 1}))
     lr = {g["name"]: g["lr"] for g in tr.optimizer.param_groups}
     assert lr["betas"] == 5e-2 and lr["smplx"] == 1e-4
     groups = {g["name"]: g["params"] for g in tr.optimizer.param_groups}
@@ -147,7 +148,8 @@ def test_shape_coefficients_have_their_own_learning_rate(scene):
 def test_finger_poses_have_their_own_learning_rate(scene):
     """train.lr_hand_poses moves the finger poses (and only them) at their own rate."""
     body, data = scene
-    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_hand_poses": 2e-2}))
+    tr = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 1e-4, "lr_hand_poses": 2e-2,
+                                               "pose_knot_spacing": 1}))
     groups = {g["name"]: g for g in tr.optimizer.param_groups}
     assert groups["hand_poses"]["lr"] == 2e-2 and groups["smplx"]["lr"] == 1e-4
     assert {id(p) for p in groups["hand_poses"]["params"]} == {
@@ -160,6 +162,12 @@ def test_finger_poses_have_their_own_learning_rate(scene):
     assert 0 < moved["body_pose"] <= 1.05 * 3 * 1e-4
     same = AvatarTrainer(body, data, _cfg(train={"lr_smplx": 2e-4, "lr_hand_poses": None}))
     assert {g["name"]: g["lr"] for g in same.optimizer.param_groups}["hand_poses"] == 2e-4
+    knotted = AvatarTrainer(body, data, _cfg(train={"lr_hand_poses": 2e-2,
+                                                    "pose_knot_spacing": 4}))
+    groups = {g["name"]: g for g in knotted.optimizer.param_groups}
+    assert groups["hand_poses"]["lr"] == 2e-2  # the fingers' knots learn at the fingers' rate
+    assert {id(p) for p in groups["hand_poses"]["params"]} == {
+        id(knotted.smplx.left_hand_pose_knots), id(knotted.smplx.right_hand_pose_knots)}
 
 
 def test_knotted_pose_corrections_move_the_neighbours_of_a_trained_frame(scene):
@@ -462,7 +470,8 @@ def test_held_out_frames_take_the_interpolated_fine_tuning_of_their_neighbours(s
     from signsplat.avatar.poses import interpolation_weights
 
     body, data = scene
-    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "lr_smplx": 1e-2}))
+    tr = AvatarTrainer(body, data, _cfg(train={"iterations": 4, "lr_smplx": 1e-2,
+                                               "pose_knot_spacing": 1}))
     tr.run(checkpoint=tmp_path / "ck.pt", progress=False)
     _, smplx, state, cfg = load_avatar(tmp_path / "ck.pt", body)
     train = np.isin(data.frames, state["split"]["train_frames"])
