@@ -160,7 +160,8 @@ def main() -> None:
     p.add_argument("--hand", choices=("left", "right"), default="right",
                    help="the signing hand")
     p.add_argument("--config", default="config/config.yaml")
-    p.add_argument("--runs", nargs="+", default=list(MIXES), choices=list(MIXES))
+    p.add_argument("--runs", nargs="*", default=list(MIXES), choices=list(MIXES),
+                   help="the mixes to train (none: only the fit's own, with --fitted)")
     p.add_argument("--fits", nargs="*", default=[], metavar="NAME=FOLDER")
     p.add_argument("--fitted", action="store_true", help="train the fit's own avatar again")
     p.add_argument("--iterations", type=int,
@@ -188,7 +189,9 @@ def main() -> None:
         if not (key and sep):
             raise SystemExit(f"--train {spec!r}: give KEY=VALUE with a JSON value")
     if settings:
-        args.fitted = True  # make demo's own avatar has the demo profile's settings, not these  # make demo's own avatar has the demo profile's settings, not these
+        args.fitted = True  # make demo's own avatar has the demo profile's settings, not these
+    if not (args.runs or args.fitted or args.fits):
+        raise SystemExit("nothing to train: give --runs, --fits or --fitted")  # make demo's own avatar has the demo profile's settings, not these
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"
