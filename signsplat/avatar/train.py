@@ -394,6 +394,11 @@ class AvatarTrainer:
 
     def load_checkpoint(self, path: str | os.PathLike) -> None:
         state = torch.load(path, map_location=self.device, weights_only=False)
+        saved = state["config"]["train"].get("pose_knot_spacing", 1)
+        if saved != self.cfg.train.pose_knot_spacing:
+            raise ValueError(f"{path}: saved with train.pose_knot_spacing {saved}, asked to "
+                             f"resume with {self.cfg.train.pose_knot_spacing}; resume with "
+                             f"{saved} or train from the start")
         self.model.resize_like(state["model"])
         self.model.load_state_dict(state["model"])
         if self.smplx.knotted:

@@ -195,6 +195,16 @@ def test_knotted_pose_corrections_move_the_neighbours_of_a_trained_frame(scene):
     assert moved[1] == 0 and moved[4] >= 2, moved
 
 
+def test_resuming_with_another_knot_spacing_names_the_file_and_both_settings(scene, tmp_path):
+    body, data = scene
+    AvatarTrainer(body, data, _cfg(train={"pose_knot_spacing": 1})).run(
+        iterations=1, checkpoint=tmp_path / "ck.pt", progress=False)
+    other = AvatarTrainer(body, data, _cfg(train={"pose_knot_spacing": 4}))
+    with pytest.raises(ValueError, match=r"ck.pt: saved with train.pose_knot_spacing 1, "
+                                         r"asked to resume with 4"):
+        other.load_checkpoint(tmp_path / "ck.pt")
+
+
 def test_knot_weights_interpolate_linearly_between_knots():
     from signsplat.avatar.checkpoint import knot_weights
 
