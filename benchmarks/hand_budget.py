@@ -191,7 +191,7 @@ def main() -> None:
     if settings:
         args.fitted = True  # make demo's own avatar has the demo profile's settings, not these
     if not (args.runs or args.fitted or args.fits):
-        raise SystemExit("nothing to train: give --runs, --fits or --fitted")  # make demo's own avatar has the demo profile's settings, not these
+        raise SystemExit("nothing to train: give --runs, --fits or --fitted")
 
     res = Path(args.results) / args.scene
     sim, fit = res / "sim", res / "fit"

@@ -82,6 +82,26 @@ class SmplxParams(nn.Module):
         """Every block for every frame as plain tensors (the checkpoint's ``smplx``)."""
         return {name: self.block(name).detach().clone() for name in self.names}
 
+    def block_parameters(self) -> list[tuple[str, nn.Parameter]]:
+        """The learnable tensors, each named by the block it moves (a block's knots too)."""
+        return [(n.removesuffix("_knots"), p) for n, p in self.named_parameters()]
+
+    def knots(self) -> dict[str, torch.Tensor]:
+        """The learned knot values of each knotted block (the checkpoint's ``smplx_knots``)."""
+        return {name: getattr(self, f"{name}_knots").detach().clone() for name in self.knotted}
+
+    def load_saved(self, values: dict[str, torch.Tensor], knots: dict[str, torch.Tensor]
+                   ) -> None:
+        """Restore what :meth:`frame_values` and :meth:`knots` saved: a knotted module keeps
+        its given values and takes the knots and the shape; otherwise every block's values."""
+        if not self.knotted:
+            self.load_state_dict(values)
+            return
+        with torch.no_grad():
+            for name in self.knotted:
+                getattr(self, f"{name}_knots").copy_(knots[name])
+            self.betas.copy_(values["betas"][:1])
+
 
 def knot_weights(frames, spacing: int) -> torch.Tensor:
     """(F, K) weights of a piecewise linear function of the frame number with knots every

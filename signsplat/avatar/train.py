@@ -221,7 +221,7 @@ class AvatarTrainer:
             # blocks with a rate of their own (None: lr_smplx); the rest at lr_smplx
             own = (("hand_poses", HAND_POSES, t.lr_hand_poses), ("betas", ("betas",), t.lr_betas))
             # a block's knots (train.pose_knot_spacing) learn at the block's rate
-            named = [(n.removesuffix("_knots"), p) for n, p in self.smplx.named_parameters()]
+            named = self.smplx.block_parameters()
             taken = {n for _, names, _ in own for n in names}
             groups.append({"params": [p for n, p in named if n not in taken],
                            "lr": t.lr_smplx, "name": "smplx"})
@@ -370,8 +370,7 @@ class AvatarTrainer:
             "model": self.model.state_dict(),
             "smplx": self.smplx.frame_values(),
             # the learned corrections of knotted blocks, for resuming (train.pose_knot_spacing)
-            "smplx_knots": {n: getattr(self.smplx, f"{n}_knots").detach().clone()
-                            for n in self.smplx.knotted},
+            "smplx_knots": self.smplx.knots(),
             "cameras": self.cameras.state_dict(),
             # refined cameras, which evaluation uses in place of the input ones (None: as given)
             "viewmats": self.viewmats.detach().cpu() if self.cameras.enabled else None,
@@ -401,13 +400,7 @@ class AvatarTrainer:
                              f"{saved} or train from the start")
         self.model.resize_like(state["model"])
         self.model.load_state_dict(state["model"])
-        if self.smplx.knotted:
-            with torch.no_grad():
-                for n in self.smplx.knotted:
-                    getattr(self.smplx, f"{n}_knots").copy_(state["smplx_knots"][n])
-                self.smplx.betas.copy_(state["smplx"]["betas"][:1])
-        else:
-            self.smplx.load_state_dict(state["smplx"])
+        self.smplx.load_saved(state["smplx"], state.get("smplx_knots", {}))
         if "cameras" in state:
             self.cameras.load_state_dict(state["cameras"])
         self.optimizer = self._make_optimizer()
