@@ -94,7 +94,8 @@ def main() -> None:
     plot_suite(df, out.with_suffix(".svg"))
     cols = ["scene", "cameras", "arc_deg", "image", "frames", "camera_rotation_deg",
             "camera_centre_m", "body_mpjpe_mm", "hands_mpjpe_mm", "camera_init", "unplaced",
-            "doubtful", "mask_turned", "mask_kept", "fit_seconds", "meets_target", "status"]
+            "doubtful", "mask_turned", "mask_kept", "cameras_held", "fit_seconds",
+            "meets_target", "status"]
     with_pd_options = __import__("pandas").option_context("display.width", 200,
                                                           "display.max_columns", 20)
     with with_pd_options:

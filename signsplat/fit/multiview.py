@@ -108,11 +108,18 @@ def _exchange_back(obs: np.ndarray, rig: Rig, views: list[int], mv: dict, height
 
 
 def _run_stages(problem, params: FitParams, cams: CameraParams, stages: list[Stage],
-                chunk: int, fitted: np.ndarray, solved: set[str]) -> None:
+                chunk: int, fitted: np.ndarray, solved: set[str], log_out: dict) -> None:
     """Run ``stages`` in order (Adam warm-started per chunk, or jointly); ``solved`` gathers
-    the parameter groups solved so far (warm starts copy only the others)."""
+    the parameter groups solved so far (warm starts copy only the others); ``log_out`` gets
+    the views whose cameras each stage held (``cameras_held``)."""
     for stage in stages:
         ts = time.perf_counter()
+        held = problem.held_views(stage)
+        if stage.hold_cameras_within_px is not None and "cameras" in stage.groups:
+            log_out.setdefault("cameras_held", {})[stage.name] = held
+            log.info("stage %s: cameras of views %s held (keypoints within %.2f px of the "
+                     "other views' at the camera initialisation), the others move", stage.name,
+                     held, stage.hold_cameras_within_px)
         if stage.warm_start:
             losses = run_warm_started(problem, params, cams, stage, chunk, fitted, solved)
         else:
@@ -230,6 +237,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     image_sizes = np.column_stack([width, height])  # (V,2): the hold's bounds
     margin = mv["init"]["mask_side_margin"]
     check = doubtful if masks is not None and margin is not None else []
+    view_px = np.asarray(rms, float).copy()  # the stages' hold_cameras_within_px reads it
     while True:
         params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
                            device=device, init=init)
@@ -239,14 +247,15 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                  "body frame +y" if up is None else np.round(up, 4).tolist())
         problem = make_problem(kpm, fit_obs, cfg, frames, weights=weights,
                                dtype=dtype, device=device, up=up, level_cameras=up is not None,
-                               masks=masks, image_sizes=image_sizes, **flow_args)
+                               masks=masks, image_sizes=image_sizes, view_px=view_px,
+                               **flow_args)
         extra_log["legs_held"] = problem.legs_held
         if problem.legs_held:
             log.info("legs no view sees (%s): held at the rest pose (fit.hold_unseen_legs)",
                      ", ".join(problem.legs_held))
         groups_solved: set[str] = set()
         _run_stages(problem, params, cams, stages[:first_mask], mv["chunk"], fitted,
-                    groups_solved)
+                    groups_solved, extra_log)
         if check:
             sides = _mask_sides(kpm, params, cams.to_rig(), fit_obs, masks, fitted, check,
                                 inlier_threshold_px(mv["init"], height))
@@ -265,11 +274,12 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
                 R, t = rig0.R.copy(), rig0.t.copy()
                 for v, c in turn.items():
                     R[v], t[v] = c.R, c.t
+                    view_px[v] = np.nan  # measured on the other side: no evidence here
                 rig0 = replace(rig0, R=R, t=t)
                 fit_obs = _exchange_back(obs, rig0, solved, mv, height, extra_log)
                 continue
         _run_stages(problem, params, cams, stages[first_mask:], mv["chunk"], fitted,
-                    groups_solved)
+                    groups_solved, extra_log)
         break
     raw = params.export()
     filled, prov = seq.fill_gaps(raw, fitted)

@@ -76,6 +76,9 @@ class Stage:
     #: weight of the optical-flow term (signsplat.fit.flow) in px^-2; 0 = the images are not
     #: read and no flow is computed
     flow: float = 0.0
+    #: views whose held-out keypoint error at the camera initialisation (Problem.view_px) is
+    #: at most this keep their cameras in this stage; None = every free camera moves
+    hold_cameras_within_px: float | None = None
 
     def __post_init__(self):
         bad = set(self.silhouette) - set(SILHOUETTE_TERMS)
@@ -85,6 +88,9 @@ class Stage:
         if self.optimizer == "lm" and (self.uses_silhouette or self.uses_flow):
             raise ValueError(f"stage {self.name!r}: the silhouette and flow terms need a "
                              "gradient optimizer (adam or lbfgs), not lm")
+        if self.optimizer == "lm" and self.hold_cameras_within_px is not None:
+            raise ValueError(f"stage {self.name!r}: hold_cameras_within_px needs a gradient "
+                             "optimizer (adam or lbfgs), not lm")
 
     @property
     def uses_silhouette(self) -> bool:
@@ -103,7 +109,7 @@ class Stage:
             raise ValueError(f"stage {cfg.get('name')!r}: unknown group(s) {sorted(bad)}; "
                              f"known {list(GROUPS)}")
         optional = {k: cfg[k] for k in ("sigma_px", "rematch_every", "flow_rematch_every",
-                                        "flow") if k in cfg}
+                                        "flow", "hold_cameras_within_px") if k in cfg}
         return cls(name=cfg["name"], iterations=int(cfg["iterations"]), lr=float(cfg["lr"]),
                    groups=groups, smooth=bool(cfg["smooth"]),
                    warm_start=bool(cfg["warm_start"]),
@@ -157,6 +163,17 @@ class Problem:
     #: (63,) bool body-pose values held at ``pose_mean`` (legs no view sees: config
     #: ``fit.hold_unseen_legs``); None holds nothing
     held_pose: torch.Tensor | None = None
+    #: (V,) each view's held-out keypoint error (px) at the camera initialisation (NaN: not
+    #: measured); what a stage's ``hold_cameras_within_px`` compares. None: not measured
+    view_px: np.ndarray | None = None
+
+    def held_views(self, stage: Stage) -> list[int]:
+        """Views whose cameras ``stage`` holds: those it optimises whose keypoints agreed
+        across the views to within its ``hold_cameras_within_px`` (none when unmeasured)."""
+        limit = stage.hold_cameras_within_px
+        if limit is None or "cameras" not in stage.groups or self.view_px is None:
+            return []
+        return [v for v, px in enumerate(np.asarray(self.view_px, float)) if px <= limit]
 
     @property
     def legs_held(self) -> list[str]:
@@ -171,7 +188,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
                  anchor: dict[str, np.ndarray] | None = None, weights: dict | None = None,
                  dtype=torch.float32, device="cpu", up: np.ndarray | None = None,
                  level_cameras: bool = False, masks: np.ndarray | None = None,
-                 flow: FlowTargets | None = None, image_sizes=None) -> Problem:
+                 flow: FlowTargets | None = None, image_sizes=None,
+                 view_px: np.ndarray | None = None) -> Problem:
     """A :class:`Problem` from the ``fit`` config section.
 
     obs (V,T,133,3); keypoints the body model cannot place (``regressor.valid`` False) get
@@ -183,6 +201,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
     the term's settings come from ``cfg['multiview']['flow']``). ``image_sizes (V,2)``
     (width, height) px: a leg keypoint outside its image does not count as seen when the
     legs no view sees are held (``fit.hold_unseen_legs``, :func:`objective.unseen_legs`).
+    ``view_px (V,)``: each view's held-out keypoint error at the camera initialisation, what
+    a stage's ``hold_cameras_within_px`` compares (None: no camera is held).
     """
     obs_t = torch.as_tensor(np.asarray(obs), dtype=dtype, device=device).clone()
     valid = getattr(kpm.regressor, "valid", None)
@@ -206,7 +226,8 @@ def make_problem(kpm: KeypointModel, obs: np.ndarray, cfg: dict, frames: np.ndar
         silhouette=None if masks is None else targets_from_masks(masks, dtype=dtype,
                                                                  device=device),
         flow=flow, flow_settings={} if flow is None else dict(cfg["multiview"]["flow"]),
-        held_pose=obj.held_pose_mask(legs, device=device) if legs else None)
+        held_pose=obj.held_pose_mask(legs, device=device) if legs else None,
+        view_px=None if view_px is None else np.asarray(view_px, float))
 
 
 def rest_body_pose(cfg: dict, T: int) -> np.ndarray:
@@ -335,6 +356,7 @@ def run_stage(problem: Problem, params: FitParams, cams: CameraParams, stage: St
 def _run_adam(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
               sel: slice, groups: list[dict]) -> list[float]:
     opt = torch.optim.Adam(groups)
+    held = problem.held_views(stage)
     base = [g["lr"] for g in opt.param_groups]
     history: list[float] = []
     cache = MatchCache(stage.rematch_every)
@@ -352,7 +374,8 @@ def _run_adam(problem: Problem, params: FitParams, cams: CameraParams, stage: St
             raise FloatingPointError(f"stage {stage.name}: non-finite loss at iteration {it} "
                                      f"({ {k: float(v) for k, v in terms.items()} })")
         loss.backward()
-        _sanitize_grads([p for g in opt.param_groups for p in g["params"]], problem, params)
+        _sanitize_grads([p for g in opt.param_groups for p in g["params"]], problem, params,
+                        cams, held)
         opt.step()
         history.append(float(loss.detach()))
     log.debug("stage %s terms: %s", stage.name,
@@ -361,13 +384,19 @@ def _run_adam(problem: Problem, params: FitParams, cams: CameraParams, stage: St
     return history
 
 
-def _sanitize_grads(tensors, problem: Problem, params: FitParams) -> None:
-    """A non-finite gradient must never reach the parameters, nor any to a held pose value."""
+def _sanitize_grads(tensors, problem: Problem, params: FitParams,
+                    cams: CameraParams | None = None, held_views: list[int] = ()) -> None:
+    """A non-finite gradient must never reach the parameters, nor any to a held pose value
+    or to a held view's camera (``held_views`` of ``cams``)."""
     for p in tensors:
         if p.grad is not None:
             torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
     if problem.held_pose is not None and params.body_pose.grad is not None:
         params.body_pose.grad[:, problem.held_pose] = 0.0
+    if cams is not None and held_views:
+        for p in (cams.rotvec, cams.dt, cams.log_focal):
+            if p.grad is not None:
+                p.grad[list(held_views)] = 0.0
 
 
 def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: Stage,
@@ -379,6 +408,7 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
                             max_eval=int(stage.iterations * 1.25) + 1, history_size=30,
                             tolerance_grad=1e-10, tolerance_change=1e-12,
                             line_search_fn="strong_wolfe")
+    held = problem.held_views(stage)
     history: list[float] = []
 
     def closure():
@@ -388,7 +418,7 @@ def _run_lbfgs(problem: Problem, params: FitParams, cams: CameraParams, stage: S
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {stage.name}: non-finite loss")
         loss.backward()
-        _sanitize_grads(tensors, problem, params)
+        _sanitize_grads(tensors, problem, params, cams, held)
         history.append(float(loss.detach()))
         return loss
 

@@ -56,6 +56,9 @@ FIT_SUITE = register_table(Table(
                        "camera_mask_sides)",
         "mask_kept": "int32 doubtful views whose person masks kept them where they were "
                      "placed (fit_log.json camera_mask_sides)",
+        "cameras_held": "int32 views whose cameras a stage held because their keypoints agreed "
+                        "with the other views' (a stage's hold_cameras_within_px; the most of "
+                        "any stage, fit_log.json cameras_held)",
         "fit_seconds": "float64 wall-clock seconds of the fit rule (Snakemake benchmark)",
         "pipeline_seconds": "float64 simulate + perception + fit seconds",
         "status": "str ok, or what failed",
@@ -123,7 +126,7 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
                  "keypoints": keypoints}
     row.update({c: float("nan") for c in _METRICS.values()})
     row.update({"camera_init": "", "camera_status": "", "unplaced": 0, "doubtful": 0,
-                "mask_turned": 0, "mask_kept": 0})
+                "mask_turned": 0, "mask_kept": 0, "cameras_held": 0})
     fit_dir = root / scene / "fit"
     bench = root / "_benchmarks"
     row["fit_seconds"] = _bench(bench, scene, "fit_smplx")
@@ -149,6 +152,8 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
     sides = summary.get("log", {}).get("camera_mask_sides", {})
     row["mask_turned"] = int(sum(bool(s.get("turned")) for s in sides.values()))
     row["mask_kept"] = len(sides) - row["mask_turned"]
+    held = summary.get("log", {}).get("cameras_held", {})
+    row["cameras_held"] = max((len(v) for v in held.values()), default=0)
     row["frames"] = int(sum(summary.get("provenance", {}).values()) or row["frames"])
     finite = np.isfinite([row[c] for c in ("camera_rotation_deg", "camera_centre_m",
                                            "body_mpjpe_mm")]).all()
@@ -161,7 +166,8 @@ def scene_row(results: str | Path, scene: str, spec: dict, keypoints: str = "det
 def suite_table(rows: list[dict]) -> pd.DataFrame:
     """Rows -> the ``fit_suite`` table (columns in the documented order and types)."""
     df = pd.DataFrame(rows, columns=list(FIT_SUITE.columns))
-    for c in ("cameras", "frames", "unplaced", "doubtful", "mask_turned", "mask_kept"):
+    for c in ("cameras", "frames", "unplaced", "doubtful", "mask_turned", "mask_kept",
+              "cameras_held"):
         df[c] = df[c].astype(np.int32)
     df["meets_target"] = df["meets_target"].astype(bool)
     return df
@@ -288,7 +294,8 @@ def fit_suite_section(parquet: str | Path, assets, figure: str | Path | None = N
             "camera_rotation_deg", "camera_centre_m", "body_mpjpe_mm", "body_seen_mpjpe_mm",
             "hands_mpjpe_mm",
             "body_pa_mpjpe_mm", "hands_pa_mpjpe_mm", "body_jitter", "camera_init", "unplaced",
-            "doubtful", "mask_turned", "mask_kept", "fit_seconds", "status", "meets_target"]
+            "doubtful", "mask_turned", "mask_kept", "cameras_held", "fit_seconds", "status",
+            "meets_target"]
     sec.add_table("per scene", df[[c for c in keep if c in df]])  # older tables lack some
     if figure is not None and Path(figure).exists():
         sec.figures.append(Figure(assets.copy(Path(figure)), "errors per scene",

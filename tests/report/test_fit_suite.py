@@ -18,7 +18,8 @@ SPEC2 = {"max_frames": 24, "cameras": {"count": 2, "layout": "arc", "arc_degrees
                                        "distance": 2.5}, "effects": []}
 
 
-def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0, sides=None):
+def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0, sides=None,
+          held=None):
     d = root / scene / "fit"
     d.mkdir(parents=True)
     rows = [("camera_rotation", "cameras", rot), ("camera_centre", "cameras", centre),
@@ -32,7 +33,8 @@ def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0, sides
     (d / "fit_log.json").write_text(json.dumps({"camera_status": status,
                                                 "log": {"camera_init": "sfm",
                                                         "camera_init_doubtful": doubtful,
-                                                        "camera_mask_sides": sides or {}},
+                                                        "camera_mask_sides": sides or {},
+                                                        "cameras_held": held or {}},
                                                 "provenance": {"fitted": 24}}))
     b = root / "_benchmarks" / scene
     b.mkdir(parents=True)
@@ -42,7 +44,7 @@ def _fake(root, scene, rot, centre, body, status, fit_s=100.0, doubtful=0, sides
 
 
 def test_rows_targets_and_summary(tmp_path):
-    _fake(tmp_path, "good", 0.4, 0.01, 14.0, ["sfm"] * 3)
+    _fake(tmp_path, "good", 0.4, 0.01, 14.0, ["sfm"] * 3, held={"a": [0, 2], "b": [1]})
     _fake(tmp_path, "far", 3.0, 0.01, 14.0, ["sfm"] * 3)
     _fake(tmp_path, "unplaced", 0.4, 0.01, 14.0, ["sfm", "unplaced", "sfm"])
     _fake(tmp_path, "pair", 4.0, 0.05, 30.0, ["sfm"] * 2)
@@ -61,6 +63,7 @@ def test_rows_targets_and_summary(tmp_path):
         "lighting,occluder"
     assert df.loc["good", "pipeline_seconds"] == 120.0
     assert df.loc["good", "body_seen_mpjpe_mm"] == 12.0
+    assert df["cameras_held"].tolist() == [2, 0, 0, 0, 0]
     s = summarise(df.reset_index())
     assert (s["multi_camera_scenes"], s["meeting_targets"], s["failed_or_nan"]) == (4, 1, 1)
     assert s["share_meeting_targets"] == 0.25
