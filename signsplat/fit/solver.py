@@ -173,7 +173,7 @@ class Problem:
         limit = stage.hold_cameras_within_px
         if limit is None or "cameras" not in stage.groups or self.view_px is None:
             return []
-        return [v for v, px in enumerate(np.asarray(self.view_px, float)) if px <= limit]
+        return [v for v, px in enumerate(self.view_px) if px <= limit]
 
     @property
     def legs_held(self) -> list[str]:
