@@ -49,6 +49,14 @@ def make_stage(**settings):
     return Stage.from_config(stage_config(**settings))
 
 
+def truth_init(params: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``FitParams`` initial values at ``params`` (a motion such as :func:`random_motion`'s):
+    its arrays but the eye poses, which the fit does not optimise, and one row of betas."""
+    init = {k: v for k, v in params.items() if k not in ("leye_pose", "reye_pose")}
+    init["betas"] = params["betas"][:1]
+    return init
+
+
 def synthetic_rig(views: int, arc: float = 150.0, size: int = 256) -> Rig:
     K = intrinsics_from_fov(size, size, 36.0)
     return rig_prior(np.tile(K, (views, 1, 1)), [size] * views, [size] * views, views, arc, 2.0,

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from fit_scenes import make_stage, observe, random_motion, synthetic_rig
+from fit_scenes import make_stage, observe, random_motion, synthetic_rig, truth_init
 from scipy.interpolate import griddata
 
 from signsplat.config import validate
@@ -218,8 +218,7 @@ def test_stage_chooses_the_flow_vertices_every_flow_rematch_every_steps(kpm, mon
     real = flow_module.match_flow
     monkeypatch.setattr(flow_module, "match_flow",
                         lambda *a, **k: calls.append(1) or real(*a, **k))
-    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
-    init["betas"] = gt["betas"][:1]
+    init = truth_init(gt)
     problem = make_problem(kpm, observe(kpm, gt, rig), validate({}, "stages/fit.schema.yaml"),
                            np.arange(2), flow=targets)
     for every, want in ((None, 7), (3, 3)):
@@ -255,8 +254,7 @@ def test_flow_stage_fixes_the_motion_between_frames_without_keypoints(kpm):
     gt, rig, verts, K, R, t = _scene(kpm, seed=4)
     W, H = int(rig.width[0]), int(rig.height[0])
     targets = _true_flow(verts, K, R, t, W, H, [(0, 1)])
-    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
-    init["betas"] = gt["betas"][:1]
+    init = truth_init(gt)
     init["transl"] = gt["transl"] + np.array([[0.0, 0.0, 0.0], [0.02, -0.015, 0.01]])
     params = FitParams(2, 10, 10, init=init)
     cams = CameraParams(rig, fixed=list(range(3)))

@@ -4,7 +4,8 @@
 import numpy as np
 import pytest
 import torch
-from fit_scenes import make_stage, observe, random_motion, render_masks, synthetic_rig
+from fit_scenes import (make_stage, observe, random_motion, render_masks, synthetic_rig,
+                         truth_init)
 from scipy.ndimage import binary_dilation
 
 from signsplat.config import validate
@@ -20,8 +21,7 @@ def _scene(kpm, T=2, V=3):
     rig = synthetic_rig(V, arc=120)
     obs = observe(kpm, gt, rig)
     masks = binary_dilation(render_masks(kpm, gt, rig), np.ones((1, 1, 5, 5), bool))
-    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
-    init["betas"] = gt["betas"][:1]
+    init = truth_init(gt)
     return rig, obs, masks, init
 
 

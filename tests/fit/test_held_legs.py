@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 import torch
-from fit_scenes import make_stage, observe, random_motion, render_masks, synthetic_rig
+from fit_scenes import (make_stage, observe, random_motion, render_masks, synthetic_rig,
+                         truth_init)
 
 from signsplat.config import validate
 from signsplat.fit import objective as obj
@@ -117,8 +118,7 @@ def _spread_scene(kpm, T=2, V=3):
     rig = synthetic_rig(V, arc=120)
     obs = observe(kpm, gt, rig)
     obs[:, :, _leg_keypoints("left") + _leg_keypoints("right"), 2] = 0.0
-    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
-    init["betas"] = gt["betas"][:1]
+    init = truth_init(gt)
     init["body_pose"] = gt["body_pose"].copy()
     init["body_pose"][:, [LEFT_HIP + 2, RIGHT_HIP + 2]] = 0.0
     return gt, rig, obs, render_masks(kpm, gt, rig), init

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 import torch
 from fit_scenes import (make_stage, mesh_vertices, observe, random_motion, render_masks,
-                         synthetic_rig)
+                         synthetic_rig, truth_init)
 
 from signsplat.config import validate
 from signsplat.errors import InputError
@@ -204,8 +204,7 @@ def test_silhouette_stage_recovers_an_offset_without_keypoints(kpm, solver):
     rig = synthetic_rig(V, arc=120)
     masks = render_masks(kpm, gt, rig)
     obs = observe(kpm, gt, rig)
-    init = {k: v for k, v in gt.items() if k not in ("leye_pose", "reye_pose")}
-    init["betas"] = gt["betas"][:1]
+    init = truth_init(gt)
     init["transl"] = gt["transl"] + np.array([0.03, 0.02, -0.02])
     params = FitParams(T, 10, 10, init=init)
     cams = CameraParams(rig, fixed=list(range(V)))
