@@ -115,7 +115,7 @@ def _run_stages(problem, params: FitParams, cams: CameraParams, stages: list[Sta
     for stage in stages:
         ts = time.perf_counter()
         held = problem.held_views(stage)
-        if stage.hold_cameras_within_px is not None and "cameras" in stage.groups:
+        if stage.holds_cameras:
             log_out.setdefault("cameras_held", {})[stage.name] = held
             log.info("stage %s: cameras of views %s held (keypoints within %.2f px of the "
                      "other views' at the camera initialisation), the others move", stage.name,
@@ -238,6 +238,7 @@ def fit_multiview(kpm: KeypointModel, obs: np.ndarray, frames: np.ndarray, K: np
     margin = mv["init"]["mask_side_margin"]
     check = doubtful if masks is not None and margin is not None else []
     view_px = np.asarray(rms, float).copy()  # the stages' hold_cameras_within_px reads it
+    view_px[cam_args["fixed"]] = np.nan  # fixed cameras never move: none to hold
     while True:
         params = FitParams(T, kpm.model.num_betas, kpm.model.num_expression, dtype=dtype,
                            device=device, init=init)

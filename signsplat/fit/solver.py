@@ -100,6 +100,11 @@ class Stage:
     def uses_flow(self) -> bool:
         return self.flow > 0
 
+    @property
+    def holds_cameras(self) -> bool:
+        """This stage moves cameras and holds those whose keypoints agree."""
+        return self.hold_cameras_within_px is not None and "cameras" in self.groups
+
     @classmethod
     def from_config(cls, cfg: dict) -> Stage:
         """From a validated stage dict (the schema has filled its defaults)."""
@@ -170,10 +175,9 @@ class Problem:
     def held_views(self, stage: Stage) -> list[int]:
         """Views whose cameras ``stage`` holds: those it optimises whose keypoints agreed
         across the views to within its ``hold_cameras_within_px`` (none when unmeasured)."""
-        limit = stage.hold_cameras_within_px
-        if limit is None or "cameras" not in stage.groups or self.view_px is None:
+        if not stage.holds_cameras or self.view_px is None:
             return []
-        return [v for v, px in enumerate(self.view_px) if px <= limit]
+        return [v for v, px in enumerate(self.view_px) if px <= stage.hold_cameras_within_px]
 
     @property
     def legs_held(self) -> list[str]:

@@ -58,7 +58,8 @@ FIT_SUITE = register_table(Table(
                      "placed (fit_log.json camera_mask_sides)",
         "cameras_held": "int32 views whose cameras a stage held because their keypoints agreed "
                         "with the other views' (a stage's hold_cameras_within_px; the most of "
-                        "any stage, fit_log.json cameras_held)",
+                        "any stage, fit_log.json cameras_held; fixed cameras such as the "
+                        "reference are never counted)",
         "fit_seconds": "float64 wall-clock seconds of the fit rule (Snakemake benchmark)",
         "pipeline_seconds": "float64 simulate + perception + fit seconds",
         "status": "str ok, or what failed",

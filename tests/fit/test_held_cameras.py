@@ -71,3 +71,22 @@ def test_the_default_silhouette_stage_holds_agreeing_cameras():
     stages = validate({}, "stages/fit.schema.yaml")["multiview"]["stages"]
     holding = [s["name"] for s in stages if "hold_cameras_within_px" in s]
     assert holding == ["silhouette"]
+
+
+def test_the_fit_log_names_held_views_but_never_a_fixed_camera(kpm):
+    """Keypoints without error agree in every view; the reference camera is fixed anyway, so
+    the log lists the other views only."""
+    from signsplat.fit.multiview import fit_multiview
+
+    T, V = 2, 3
+    gt = random_motion(T, seed=4)
+    rig = synthetic_rig(V, arc=120)
+    obs = observe(kpm, gt, rig)
+    cfg = validate({"multiview": {"stages": [
+        {"name": "root", "iterations": 10, "lr": 0.05, "groups": ["root"], "warm_start": True},
+        {"name": "cams", "iterations": 3, "lr": 0.01, "groups": ["root", "cameras"],
+         "hold_cameras_within_px": 0.5}]}}, "stages/fit.schema.yaml")
+    res = fit_multiview(kpm, obs, np.arange(T), rig.K, rig.width, rig.height, cfg)
+    ref = res.log["reference_view"]
+    assert max(res.log[f"camera_init_px_view{v}"] for v in range(V)) < 0.5
+    assert res.log["cameras_held"]["cams"] == [v for v in range(V) if v != ref]
