@@ -169,7 +169,8 @@ class Problem:
     #: ``fit.hold_unseen_legs``); None holds nothing
     held_pose: torch.Tensor | None = None
     #: (V,) each view's held-out keypoint error (px) at the camera initialisation (NaN: not
-    #: measured); what a stage's ``hold_cameras_within_px`` compares. None: not measured
+    #: measured, or a camera that stays fixed anyway); what a stage's
+    #: ``hold_cameras_within_px`` compares. None: not measured
     view_px: np.ndarray | None = None
 
     def held_views(self, stage: Stage) -> list[int]:

@@ -11,6 +11,7 @@ from scipy.ndimage import binary_dilation
 from signsplat.config import validate
 from signsplat.fit.bodyfit import FitParams
 from signsplat.fit.cameras import CameraParams
+from signsplat.fit.multiview import fit_multiview
 from signsplat.fit.solver import make_problem, run_stage
 
 
@@ -76,8 +77,6 @@ def test_the_default_silhouette_stage_holds_agreeing_cameras():
 def test_the_fit_log_names_held_views_but_never_a_fixed_camera(kpm):
     """Keypoints without error agree in every view; the reference camera is fixed anyway, so
     the log lists the other views only."""
-    from signsplat.fit.multiview import fit_multiview
-
     T, V = 2, 3
     gt = random_motion(T, seed=4)
     rig = synthetic_rig(V, arc=120)
